@@ -1,0 +1,34 @@
+// Lab step 00: primary rays with simple shading (CUDA). The per-ray work is shared with OpenCL in
+// kernels/shared/rt_primary.h; this file holds only what CUDA spells its own way: constant-memory
+// symbols and the thread index.
+#include "rt_primary.h"
+
+__constant__ RtFrame c_frame;
+__constant__ RtLight c_lights[RT_MAX_LIGHTS];
+__constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
+
+// Closest hit of arbitrary rays: origins (x, y, z, tmin), directions (x, y, z, tmax).
+RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
+                          const float4 *__restrict__ directions, float4 *__restrict__ hits, int n_rays)
+{
+    int i = blockIdx.x * blockDim.x + threadIdx.x;
+    if (i >= n_rays)
+        return;
+    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+}
+
+// One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).
+RT_KERNEL void render_primary(RT_SCENE_PARAMS, unsigned int *__restrict__ pixels, float4 *__restrict__ hits)
+{
+    int x = blockIdx.x * blockDim.x + threadIdx.x;
+    int y = blockIdx.y * blockDim.y + threadIdx.y;
+    if (x >= c_frame.width || y >= c_frame.height)
+        return;
+    Hit hit;
+    unsigned int rgba = render_pixel(RT_SCENE_ARGS, &c_frame, c_lights, c_materials, x, y, &hit);
+    int i = y * c_frame.width + x;
+    pixels[i] = rgba;
+#if RT_WRITE_HITS
+    hits[i] = pack_hit(hit);
+#endif
+}

@@ -1,0 +1,33 @@
+// Lab step 00: primary rays with simple shading (OpenCL). The per-ray work is shared with CUDA in
+// kernels/shared/rt_primary.h; this file holds only what OpenCL spells its own way: constant-memory
+// arguments (last, in the order frame, lights, materials) and the work-item index.
+#include "rt_primary.h"
+
+// Closest hit of arbitrary rays: origins (x, y, z, tmin), directions (x, y, z, tmax).
+__kernel void trace_rays(RT_SCENE_PARAMS, __global const float4 *restrict origins,
+                         __global const float4 *restrict directions, __global float4 *restrict hits,
+                         int n_rays, __constant RtFrame *frame)
+{
+    int i = get_global_id(0);
+    if (i >= n_rays)
+        return;
+    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+}
+
+// One work-item a pixel; the work-group shape is the launch's (the paper's Fig. 4 studies it).
+__kernel void render_primary(RT_SCENE_PARAMS, __global unsigned int *restrict pixels,
+                             __global float4 *restrict hits, __constant RtFrame *frame,
+                             __constant RtLight *lights, __constant RtMaterial *materials)
+{
+    int x = get_global_id(0);
+    int y = get_global_id(1);
+    if (x >= frame->width || y >= frame->height)
+        return;
+    Hit hit;
+    unsigned int rgba = render_pixel(RT_SCENE_ARGS, frame, lights, materials, x, y, &hit);
+    int i = y * frame->width + x;
+    pixels[i] = rgba;
+#if RT_WRITE_HITS
+    hits[i] = pack_hit(hit);
+#endif
+}

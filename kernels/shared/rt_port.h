@@ -1,0 +1,96 @@
+/* rt_port.h - the portability layer: one source of device code for two languages.
+ *
+ * Compiled as CUDA C++ by nvcc (sm_90; pycuda) and as OpenCL C by NVIDIA's OpenCL 3.0 and PoCL.
+ * Everything that differs by language is here or in rt_memory.h; algorithm headers include this file
+ * and are written in the C both languages accept: no references, templates, overloads or default
+ * arguments; results come back through a pointer (Hit *hit).
+ *
+ * Pitfall: float3 is 12 bytes in CUDA and 16 in OpenCL. It is used only in registers, never in a
+ * buffer shared with the host (those are float4, mirrored by numpy dtypes in rtlab/layout.py).
+ */
+#ifndef RT_PORT_H
+#define RT_PORT_H
+
+/* ---- Variants: compile-time switches. rtlab/kernels.py passes -D for each; these are the defaults. */
+#define RT_ISECT_MOLLER 0          /* Moller-Trumbore 1997 (the paper's MT column, Table 3) */
+#define RT_TRAVERSAL_STACK 0       /* single ray, per-thread stack (Table 4, first column) */
+#define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
+#define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
+
+#ifndef RT_ISECT
+#define RT_ISECT RT_ISECT_MOLLER
+#endif
+#ifndef RT_TRAVERSAL
+#define RT_TRAVERSAL RT_TRAVERSAL_STACK
+#endif
+#ifndef RT_NODE_MEM
+#define RT_NODE_MEM RT_MEM_GLOBAL
+#endif
+#ifndef RT_STACK_SIZE              /* the loader sets tree depth + 1, so the stack cannot overflow */
+#define RT_STACK_SIZE 64
+#endif
+#ifndef RT_SMOOTH_NORMALS          /* 1: interpolate per-vertex normals; 0: flat (no normal buffer reads) */
+#define RT_SMOOTH_NORMALS 0
+#endif
+#ifndef RT_MAX_LIGHTS
+#define RT_MAX_LIGHTS 4
+#endif
+#ifndef RT_MAX_MATERIALS
+#define RT_MAX_MATERIALS 64
+#endif
+#ifndef RT_WRITE_HITS              /* 1: the render kernel also writes each pixel's hit record */
+#define RT_WRITE_HITS 0
+#endif
+
+/* ---- Language split ---- */
+#if defined(__CUDACC__)
+#define RT_FN static __device__ __forceinline__
+#define RT_KERNEL extern "C" __global__
+#define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
+#define RT_CONST
+#define RT_INF __int_as_float(0x7f800000)
+#define rt_as_float(i) __int_as_float(i)
+#define rt_as_int(f) __float_as_int(f)
+#define rt_min fminf
+#define rt_max fmaxf
+#define rt_abs fabsf
+#define rt_sqrt sqrtf
+#define rt_isfinite isfinite
+RT_FN float3 f3(float x, float y, float z) { return make_float3(x, y, z); }
+RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z, w); }
+#else /* OpenCL C */
+#define RT_FN static inline
+#define RT_KERNEL __kernel
+#define RT_GLOBAL __global
+#define RT_CONST __constant
+#define RT_INF INFINITY
+#define rt_as_float(i) as_float(i)
+#define rt_as_int(f) as_int(f)
+#define rt_min fmin
+#define rt_max fmax
+#define rt_abs fabs
+#define rt_sqrt sqrt
+#define rt_isfinite isfinite
+RT_FN float3 f3(float x, float y, float z) { return (float3)(x, y, z); }
+RT_FN float4 f4(float x, float y, float z, float w) { return (float4)(x, y, z, w); }
+#endif
+
+/* ---- Vector helpers (OpenCL has operators on float3, CUDA does not: use these everywhere) ---- */
+RT_FN float3 xyz(float4 a) { return f3(a.x, a.y, a.z); }
+RT_FN float3 add3(float3 a, float3 b) { return f3(a.x + b.x, a.y + b.y, a.z + b.z); }
+RT_FN float3 sub3(float3 a, float3 b) { return f3(a.x - b.x, a.y - b.y, a.z - b.z); }
+RT_FN float3 mul3(float3 a, float s) { return f3(a.x * s, a.y * s, a.z * s); }
+RT_FN float3 hadamard3(float3 a, float3 b) { return f3(a.x * b.x, a.y * b.y, a.z * b.z); }
+RT_FN float3 madd3(float3 a, float3 b, float s) { return f3(a.x + b.x * s, a.y + b.y * s, a.z + b.z * s); }
+RT_FN float dot3(float3 a, float3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+RT_FN float3 cross3(float3 a, float3 b)
+{
+    return f3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+RT_FN float3 normalize3(float3 a) { return mul3(a, 1.0f / rt_sqrt(dot3(a, a))); }
+/* Component by run-time index with selects, not a[axis]: indexing a register vector is what pushed
+ * the paper's rays into local memory (§3.1.1). */
+RT_FN float get3(float3 a, int axis) { return axis == 0 ? a.x : (axis == 1 ? a.y : a.z); }
+RT_FN int finite3(float3 a) { return rt_isfinite(a.x) && rt_isfinite(a.y) && rt_isfinite(a.z); }
+
+#endif /* RT_PORT_H */

@@ -1,0 +1,575 @@
+"""SAH kd-tree in the paper's layout (Fig. 2): node list -> object list -> triangle lists.
+
+Node encoding (``nodes``: (N, 2) int32, 8 bytes a node; mirrored by kernels/shared/rt_kdtree.h):
+  interior: nodes[i, 0] = (left_child << 2) | axis   (axis 0, 1, 2; right child = left_child + 1)
+            nodes[i, 1] = split position, float32 bits (nodes.view(np.float32)[i, 1])
+  leaf:     nodes[i, 0] = (n_triangles << 2) | 3
+            nodes[i, 1] = offset of its first entry in ``objects``
+The root is node 0. Children of one node are stored side by side.
+A triangle overlapping (or lying in) a split plane is referenced by both sides, so the traversal
+only needs inclusive [tmin, tmax] cell ranges to find every hit.
+
+How the builder works (``build_kdtree``)
+----------------------------------------
+Breadth first, one level of the tree at a time (as in Zhou et al. 2008 and Shevtsov et al. 2007):
+every node of a level is planned and split in parallel (numba ``prange`` over chunks of nodes of
+about equal work), so both cores stay busy from the second level down.
+
+* Split choice: Havran's surface area heuristic (Havran 2000, ch. 4; Wald & Havran 2006),
+      cost(p) = lambda(p) * (C_trav + C_isect * (SA_L/SA * N_L + SA_R/SA * N_R)),
+  lambda = 1 - empty_bonus when one side holds no triangle, else 1 (Wald & Havran use 0.8).
+  Nodes with more than ``exact_below`` references use a binned SAH (``bins`` planes on each of the
+  3 axes, Wald 2007 / Shevtsov 2007); smaller nodes sweep every candidate plane exactly
+  (sorted events, Wald & Havran 2006 section 4.2). Candidates lie strictly inside the node box,
+  which also keeps the empty bonus from cutting off zero-volume slabs forever.
+* Leaf when N <= max_leaf_size, at the depth limit (pbrt's 8 + 1.3 log2 N), or when no split
+  is cheaper than C_isect * N.
+* "Perfect splits" (Havran 2000, Wald & Havran 2006 section 4.3): a triangle that straddles the
+  split plane is clipped to each child box (Sutherland-Hodgman, float64) and keeps the box of the
+  clipped polygon, rounded outwards to float32. This removes most references a triangle would
+  otherwise get in cells its bounding box overlaps but the triangle does not.
+* Classification of a reference with clipped extent [lo, hi] on the split axis at p:
+  lo < p -> left, hi > p -> right (both when it straddles), and lo == hi == p (lying in the plane)
+  -> both children. A triangle that only touches the plane from one side stays on that side: it
+  overlaps only that cell, and a ray hitting it on the plane visits that cell (inclusive ranges).
+* Zero-area triangles (and any with a non-finite vertex) are never referenced: no ray can hit them.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+LEAF_TAG = 3
+
+# Event types of the exact sweep, in the order they are processed at one position: references
+# ending there leave the right side before planar and starting ones enter the left side.
+_EV_END, _EV_PLANAR, _EV_START = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class KdBuildParams:
+    """Havran's SAH cost model. ``max_depth`` 0 means round(8 + 1.3 floor(log2 N)) (pbrt's rule)."""
+    cost_traversal: float = 1.0
+    cost_intersect: float = 1.5
+    empty_bonus: float = 0.2          # cost times (1 - empty_bonus) when one side is empty (Wald & Havran)
+    max_leaf_size: int = 1            # a node with no more triangles than this is always a leaf
+    max_depth: int = 0
+    bins: int = 32                    # binned SAH for large nodes; 0: exact sweep everywhere
+    exact_below: int = 128            # nodes with at most this many references sweep exactly
+
+    def key(self) -> str:
+        return (f"kd-ct{self.cost_traversal}-ci{self.cost_intersect}-eb{self.empty_bonus}"
+                f"-ml{self.max_leaf_size}-md{self.max_depth}-b{self.bins}-x{self.exact_below}")
+
+    def depth_limit(self, n_triangles: int) -> int:
+        if self.max_depth > 0:
+            return self.max_depth
+        floor_log2 = max(int(n_triangles), 1).bit_length() - 1
+        return int(round(8 + 1.3 * floor_log2))
+
+
+@dataclass
+class KdTree:
+    nodes: np.ndarray          # (N, 2) int32, encoding above
+    objects: np.ndarray        # (M,) int32 triangle indices, leaves' lists back to back
+    bounds: np.ndarray         # (2, 3) float32 root box
+    depth: int                 # deepest leaf's depth (root = 0): the traversal stack needs depth + 1
+    params: KdBuildParams = field(default_factory=KdBuildParams)
+    build_seconds: float = 0.0
+    sah_cost: float = 0.0      # expected cost of the tree under the SAH model (root = 1 area unit)
+
+    # --- decoding helpers (host side; the kernels decode the same bits) ---
+    def is_leaf(self) -> np.ndarray:
+        return (self.nodes[:, 0] & 3) == LEAF_TAG
+
+    def split_axis(self) -> np.ndarray:
+        return self.nodes[:, 0] & 3
+
+    def split_pos(self) -> np.ndarray:
+        return self.nodes[:, 1].view(np.float32)
+
+    def child_or_count(self) -> np.ndarray:
+        return self.nodes[:, 0] >> 2
+
+
+# ---------------------------------------------------------------------------------------------
+# numba kernels. Boxes are float32 rows (lo x, y, z, hi x, y, z); a box stored here never holds
+# -0.0 (adding +0.0 turns it into +0.0), so equal coordinates have equal bits in the exact sweep.
+# ---------------------------------------------------------------------------------------------
+
+@njit(parallel=True, cache=True)
+def _triangle_boxes(vertices, faces):
+    """Bounding box of every triangle, and whether it can be hit (finite, non-zero area)."""
+    n = faces.shape[0]
+    boxes = np.empty((n, 6), np.float32)
+    usable = np.zeros(n, np.bool_)
+    for i in prange(n):
+        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
+        finite = True
+        for k in range(3):
+            x0, x1, x2 = vertices[i0, k], vertices[i1, k], vertices[i2, k]
+            finite &= np.isfinite(x0) and np.isfinite(x1) and np.isfinite(x2)
+            boxes[i, k] = min(x0, x1, x2) + np.float32(0.0)
+            boxes[i, 3 + k] = max(x0, x1, x2) + np.float32(0.0)
+        # Twice the area, in float64: zero for collinear or repeated vertices
+        ax, ay, az = np.float64(vertices[i0, 0]), np.float64(vertices[i0, 1]), np.float64(vertices[i0, 2])
+        ux, uy, uz = vertices[i1, 0] - ax, vertices[i1, 1] - ay, vertices[i1, 2] - az
+        vx, vy, vz = vertices[i2, 0] - ax, vertices[i2, 1] - ay, vertices[i2, 2] - az
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        usable[i] = finite and nx * nx + ny * ny + nz * nz > 0.0
+    return boxes, usable
+
+
+@njit(cache=True, inline="always")
+def _split_cost(node_box, axis, p, n_left, n_right, inv_area, ct, ci, eb):
+    """Havran's SAH cost of splitting node_box at p on axis (child areas over the node's area)."""
+    b = (axis + 1) % 3
+    c = (axis + 2) % 3
+    db = np.float64(node_box[3 + b]) - node_box[b]
+    dc = np.float64(node_box[3 + c]) - node_box[c]
+    cap = db * dc
+    rim = db + dc
+    area_left = 2.0 * (cap + (np.float64(p) - node_box[axis]) * rim)
+    area_right = 2.0 * (cap + (np.float64(node_box[3 + axis]) - p) * rim)
+    cost = ct + ci * (area_left * n_left + area_right * n_right) * inv_area
+    if n_left == 0 or n_right == 0:
+        cost *= 1.0 - eb
+    return cost
+
+
+@njit(cache=True)
+def _box_area(box):
+    dx = np.float64(box[3]) - box[0]
+    dy = np.float64(box[4]) - box[1]
+    dz = np.float64(box[5]) - box[2]
+    return 2.0 * (dx * dy + dy * dz + dz * dx)
+
+
+@njit(cache=True)
+def _best_split_binned(ref_box, start, n, node_box, counts, inv_area, ct, ci, eb):
+    """Binned SAH over all three axes: counts[0] bins the reference minima, counts[1] the maxima;
+    the plane between bins k-1 and k has the references whose minimum lies in bins < k on its
+    left and those whose maximum lies in bins >= k on its right."""
+    nbins = counts.shape[2]
+    counts[:] = 0
+    scale = np.zeros(3)
+    for a in range(3):
+        extent = np.float64(node_box[3 + a]) - node_box[a]
+        if extent > 0.0:
+            scale[a] = nbins / extent
+    for j in range(start, start + n):
+        for a in range(3):
+            lo = node_box[a]
+            b0 = min(max(int((ref_box[j, a] - lo) * scale[a]), 0), nbins - 1)
+            b1 = min(max(int((ref_box[j, 3 + a] - lo) * scale[a]), 0), nbins - 1)
+            counts[0, a, b0] += 1
+            counts[1, a, b1] += 1
+    best_cost, best_axis, best_pos = np.inf, -1, np.float32(0.0)
+    for a in range(3):
+        if scale[a] == 0.0:
+            continue
+        lo, hi = node_box[a], node_box[3 + a]
+        n_left, n_right = 0, n
+        for k in range(1, nbins):
+            n_left += counts[0, a, k - 1]
+            n_right -= counts[1, a, k - 1]
+            p = np.float32(lo + (np.float64(hi) - lo) * k / nbins)
+            if not (lo < p < hi):
+                continue
+            cost = _split_cost(node_box, a, p, n_left, n_right, inv_area, ct, ci, eb)
+            if cost < best_cost:
+                best_cost, best_axis, best_pos = cost, a, p
+    return best_axis, best_pos, best_cost
+
+
+@njit(cache=True, inline="always")
+def _event_key(bits, kind, index):
+    """Sort key of one sweep event: float position (its bits made monotonic), then kind, then
+    the reference (so the plane's float can be read back from the winning event)."""
+    b = np.int64(bits)
+    ordered = b ^ ((b >> 31) & 0x7FFFFFFF)
+    return (ordered << 32) | (np.int64(kind) << 30) | index
+
+
+@njit(cache=True)
+def _best_split_exact(ref_box, ref_bits, start, n, node_box, events, inv_area, ct, ci, eb):
+    """Exact SAH: sweep the sorted start/end/planar events of each axis (Wald & Havran 2006).
+    Every distinct clipped-box bound strictly inside the node is a candidate plane."""
+    best_cost, best_axis, best_pos = np.inf, -1, np.float32(0.0)
+    for a in range(3):
+        lo, hi = node_box[a], node_box[3 + a]
+        if not lo < hi:
+            continue
+        m = 0
+        for j in range(n):
+            b0, b1 = ref_bits[start + j, a], ref_bits[start + j, 3 + a]
+            if b0 == b1:
+                events[m] = _event_key(b0, _EV_PLANAR, j)
+                m += 1
+            else:
+                events[m] = _event_key(b0, _EV_START, j)
+                events[m + 1] = _event_key(b1, _EV_END, j)
+                m += 2
+        ev = events[:m]
+        ev.sort()
+        n_left, n_right = 0, n
+        i = 0
+        while i < m:
+            # Count the events at this position, then price the plane there: references lying
+            # in it go to both sides
+            position = ev[i] >> 32
+            n_end = n_planar = n_start = 0
+            j = i
+            while j < m and (ev[j] >> 32) == position:
+                kind = (ev[j] >> 30) & 3
+                if kind == _EV_END:
+                    n_end += 1
+                elif kind == _EV_PLANAR:
+                    n_planar += 1
+                else:
+                    n_start += 1
+                j += 1
+            n_right -= n_end + n_planar
+            ref = start + (ev[i] & 0x3FFFFFFF)
+            p = ref_box[ref, 3 + a] if ((ev[i] >> 30) & 3) == _EV_END else ref_box[ref, a]
+            if lo < p < hi:
+                cost = _split_cost(node_box, a, p, n_left + n_planar, n_right + n_planar,
+                                   inv_area, ct, ci, eb)
+                if cost < best_cost:
+                    best_cost, best_axis, best_pos = cost, a, p
+            n_left += n_start + n_planar
+            i = j
+    return best_axis, best_pos, best_cost
+
+
+@njit(cache=True)
+def _count_sides(ref_box, start, n, axis, p):
+    """References going left and right under the classification rule (module docstring)."""
+    n_left = n_right = 0
+    for j in range(start, start + n):
+        lo, hi = ref_box[j, axis], ref_box[j, 3 + axis]
+        planar = lo == p and hi == p
+        n_left += lo < p or planar
+        n_right += hi > p or planar
+    return n_left, n_right
+
+
+@njit(parallel=True, cache=True)
+def _plan_level(ref_box, ref_bits, node_box, node_start, node_count, chunks, leaves_only,
+                ct, ci, eb, max_leaf, nbins, exact_below):
+    """Choose each node's split (axis -1: make a leaf) and count its children's references."""
+    n_nodes = node_box.shape[0]
+    axis = np.full(n_nodes, -1, np.int32)
+    pos = np.zeros(n_nodes, np.float32)
+    n_left = np.zeros(n_nodes, np.int64)
+    n_right = np.zeros(n_nodes, np.int64)
+    if leaves_only:
+        return axis, pos, n_left, n_right
+    for c in prange(chunks.shape[0] - 1):
+        first, last = chunks[c], chunks[c + 1]
+        events = np.empty(2 * node_count[first:last].max(), np.int64)
+        counts = np.empty((2, 3, max(nbins, 1)), np.int64)
+        for i in range(first, last):
+            n = node_count[i]
+            area = _box_area(node_box[i])
+            if n <= max_leaf or not area > 0.0:
+                continue
+            s = node_start[i]
+            if nbins > 0 and n > exact_below:
+                a, p, cost = _best_split_binned(ref_box, s, n, node_box[i], counts, 1.0 / area,
+                                                ct, ci, eb)
+            else:
+                a, p, cost = _best_split_exact(ref_box, ref_bits, s, n, node_box[i], events,
+                                               1.0 / area, ct, ci, eb)
+            if a >= 0 and cost < ci * n:
+                axis[i] = a
+                pos[i] = p
+                n_left[i], n_right[i] = _count_sides(ref_box, s, n, a, p)
+    return axis, pos, n_left, n_right
+
+
+@njit(cache=True)
+def _clip_to_box(vertices, faces, tri, box, poly):
+    """Sutherland-Hodgman: clip triangle tri to box in float64. The polygon ends in poly[which,
+    :count]; returns (which, count), count 0 when nothing is left. poly: (2, 16, 3) scratch."""
+    for k in range(3):
+        for c in range(3):
+            poly[0, k, c] = vertices[faces[tri, k], c]
+    src, m = 0, 3
+    for a in range(3):
+        for side in range(2):
+            plane = np.float64(box[3 * side + a])
+            sign = 1.0 if side == 0 else -1.0       # inside: sign * (x - plane) >= 0
+            inside = 0
+            for k in range(m):
+                inside += sign * (poly[src, k, a] - plane) >= 0.0
+            if inside == m:
+                continue
+            dst, mm = 1 - src, 0
+            for k in range(m):
+                k1 = (k + 1) % m
+                dp = sign * (poly[src, k, a] - plane)
+                dq = sign * (poly[src, k1, a] - plane)
+                if dp >= 0.0:
+                    poly[dst, mm] = poly[src, k]
+                    mm += 1
+                if (dp >= 0.0) != (dq >= 0.0):
+                    # Put the crossing point exactly on the plane
+                    t = dp / (dp - dq)
+                    for c in range(3):
+                        poly[dst, mm, c] = poly[src, k, c] + t * (poly[src, k1, c] - poly[src, k, c])
+                    poly[dst, mm, a] = plane
+                    mm += 1
+            src, m = dst, mm
+            if m == 0:
+                return src, 0
+    return src, m
+
+
+@njit(cache=True, inline="always")
+def _down_f32(x):
+    y = np.float32(x)
+    if y > x:
+        y = np.nextafter(y, np.float32(-np.inf))
+    return y
+
+
+@njit(cache=True, inline="always")
+def _up_f32(x):
+    y = np.float32(x)
+    if y < x:
+        y = np.nextafter(y, np.float32(np.inf))
+    return y
+
+
+@njit(cache=True)
+def _split_straddler(vertices, faces, tri, ref_box_row, node_box, axis, p, poly, ext, out_left,
+                     out_right):
+    """Boxes of the parts of a straddling triangle on each side of the plane ("perfect splits"):
+    clip it to the node box, then split the polygon at p in one pass over its edges. Boxes are
+    rounded outwards and kept inside the reference's current box on that side, so they only
+    ever shrink; if rounding left nothing, the side's share of the current box is kept.
+    ext: (4, 3) float64 scratch for the two sides' extents."""
+    lo_l, hi_l, lo_r, hi_r = ext[0], ext[1], ext[2], ext[3]
+    lo_l[:] = np.inf
+    hi_l[:] = -np.inf
+    lo_r[:] = np.inf
+    hi_r[:] = -np.inf
+    src, m = _clip_to_box(vertices, faces, tri, node_box, poly)
+    pp = np.float64(p)
+    for k in range(m):
+        k1 = (k + 1) % m
+        x, x1 = poly[src, k, axis], poly[src, k1, axis]
+        for c in range(3):
+            v = poly[src, k, c]
+            if x <= pp:
+                lo_l[c] = min(lo_l[c], v)
+                hi_l[c] = max(hi_l[c], v)
+            if x >= pp:
+                lo_r[c] = min(lo_r[c], v)
+                hi_r[c] = max(hi_r[c], v)
+        if (x < pp < x1) or (x1 < pp < x):
+            t = (pp - x) / (x1 - x)
+            for c in range(3):
+                v = pp if c == axis else poly[src, k, c] + t * (poly[src, k1, c] - poly[src, k, c])
+                lo_l[c] = min(lo_l[c], v)
+                hi_l[c] = max(hi_l[c], v)
+                lo_r[c] = min(lo_r[c], v)
+                hi_r[c] = max(hi_r[c], v)
+    for c in range(3):
+        out_left[c] = ref_box_row[c]
+        out_left[3 + c] = ref_box_row[3 + c]
+        out_right[c] = ref_box_row[c]
+        out_right[3 + c] = ref_box_row[3 + c]
+    out_left[3 + axis] = p
+    out_right[axis] = p
+    if lo_l[0] <= hi_l[0]:
+        for c in range(3):
+            out_left[c] = max(out_left[c], _down_f32(lo_l[c])) + np.float32(0.0)
+            out_left[3 + c] = min(out_left[3 + c], _up_f32(hi_l[c])) + np.float32(0.0)
+    if lo_r[0] <= hi_r[0]:
+        for c in range(3):
+            out_right[c] = max(out_right[c], _down_f32(lo_r[c])) + np.float32(0.0)
+            out_right[3 + c] = min(out_right[3 + c], _up_f32(hi_r[c])) + np.float32(0.0)
+
+
+@njit(parallel=True, cache=True)
+def _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
+                   dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects):
+    """Write each split node's references to its children (clipping straddlers) and each leaf's
+    triangle list to ``objects``."""
+    for c in prange(chunks.shape[0] - 1):
+        poly = np.empty((2, 16, 3))
+        ext = np.empty((4, 3))
+        for i in range(chunks[c], chunks[c + 1]):
+            s, n = node_start[i], node_count[i]
+            a = axis[i]
+            if a < 0:
+                objects[leaf_dst[i]:leaf_dst[i] + n] = ref_tri[s:s + n]
+                continue
+            p = pos[i]
+            left, right = dst_left[i], dst_right[i]
+            for j in range(s, s + n):
+                lo, hi = ref_box[j, a], ref_box[j, 3 + a]
+                if lo < p < hi:
+                    _split_straddler(vertices, faces, ref_tri[j], ref_box[j], node_box[i], a, p,
+                                     poly, ext, out_box[left], out_box[right])
+                    out_tri[left] = out_tri[right] = ref_tri[j]
+                    left += 1
+                    right += 1
+                    continue
+                planar = lo == p and hi == p
+                if lo < p or planar:
+                    out_tri[left] = ref_tri[j]
+                    out_box[left] = ref_box[j]
+                    left += 1
+                if hi > p or planar:
+                    out_tri[right] = ref_tri[j]
+                    out_box[right] = ref_box[j]
+                    right += 1
+
+
+# ---------------------------------------------------------------------------------------------
+# host side
+# ---------------------------------------------------------------------------------------------
+
+def _exclusive_cumsum(x: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(x), np.int64)
+    np.cumsum(x[:-1], out=out[1:])
+    return out
+
+
+def _work_chunks(node_count: np.ndarray) -> np.ndarray:
+    """Boundaries splitting a level's nodes into runs of about equal work, several per thread,
+    since prange hands out iterations statically."""
+    n = len(node_count)
+    n_chunks = min(n, 8 * numba.get_num_threads())
+    work = np.cumsum(node_count + 16)
+    cuts = np.searchsorted(work, np.linspace(0, work[-1], n_chunks + 1)[1:-1])
+    return np.unique(np.concatenate([[0], cuts, [n]])).astype(np.int64)
+
+
+def _empty_tree(params: KdBuildParams, seconds: float) -> KdTree:
+    nodes = np.array([[LEAF_TAG, 0]], np.int32)
+    return KdTree(nodes, np.zeros(0, np.int32), np.zeros((2, 3), np.float32), 0, params, seconds, 0.0)
+
+
+def build_kdtree(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams = KdBuildParams(),
+                 progress=None) -> KdTree:
+    """Build Havran's SAH kd-tree over a triangle mesh (see the module docstring).
+
+    vertices: (V, 3) float32; faces: (F, 3) int32 indices into vertices.
+    progress: optional callable ``progress(level, max_depth)``, called after each tree level.
+    """
+    t0 = time.perf_counter()
+    vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, np.int32).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError("face indices out of range of the vertex array")
+    tri_box, usable = _triangle_boxes(vertices, faces)
+    ref_tri = np.flatnonzero(usable).astype(np.int32)
+    ref_box = np.ascontiguousarray(tri_box[ref_tri])
+    if len(ref_tri) == 0:
+        return _empty_tree(params, time.perf_counter() - t0)
+
+    bounds = np.stack([ref_box[:, :3].min(0), ref_box[:, 3:].max(0)]).astype(np.float32)
+    max_depth = params.depth_limit(len(ref_tri))
+    ct, ci, eb = float(params.cost_traversal), float(params.cost_intersect), float(params.empty_bonus)
+
+    node_box = bounds.reshape(1, 6).copy()
+    node_start = np.zeros(1, np.int64)
+    node_count = np.array([len(ref_tri)], np.int64)
+    node_levels, object_levels = [], []
+    n_nodes_before = n_objects_before = 0
+    weighted_cost = 0.0
+    depth = 0
+    while True:
+        n_level = len(node_count)
+        chunks = _work_chunks(node_count)
+        axis, pos, n_left, n_right = _plan_level(
+            ref_box, ref_box.view(np.int32), node_box, node_start, node_count, chunks,
+            depth >= max_depth, ct, ci, eb, params.max_leaf_size, params.bins, params.exact_below)
+        split = axis >= 0
+        leaf = ~split
+
+        # Encode this level's nodes; children of the k-th split node go to the next level's 2k, 2k+1
+        words = np.empty((n_level, 2), np.int32)
+        first_child = n_nodes_before + n_level + 2 * (np.cumsum(split) - 1)
+        words[split, 0] = (first_child[split] << 2) | axis[split]
+        words[split, 1] = pos[split].view(np.int32)
+        leaf_count = np.where(leaf, node_count, 0)
+        leaf_dst = _exclusive_cumsum(leaf_count)
+        words[leaf, 0] = (node_count[leaf] << 2) | LEAF_TAG
+        words[leaf, 1] = n_objects_before + leaf_dst[leaf]
+        node_levels.append(words)
+
+        areas = _node_areas(node_box)
+        weighted_cost += ct * areas[split].sum() + ci * (areas[leaf] * node_count[leaf]).sum()
+
+        dst_left = _exclusive_cumsum(n_left + n_right)
+        dst_right = dst_left + n_left
+        n_refs_next = int(n_left.sum() + n_right.sum())
+        out_tri = np.empty(n_refs_next, np.int32)
+        out_box = np.empty((n_refs_next, 6), np.float32)
+        objects = np.empty(int(leaf_count.sum()), np.int32)
+        _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
+                       dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects)
+        object_levels.append(objects)
+        n_nodes_before += n_level
+        n_objects_before += len(objects)
+        if progress is not None:
+            progress(depth, max_depth)
+        if not split.any():
+            break
+
+        # Next level: children boxes and reference ranges, left and right interleaved
+        parent_box, a, p = node_box[split], axis[split], pos[split]
+        rows = np.arange(len(a))
+        left_box, right_box = parent_box.copy(), parent_box.copy()
+        left_box[rows, 3 + a] = p
+        right_box[rows, a] = p
+        node_box = np.stack([left_box, right_box], axis=1).reshape(-1, 6)
+        node_start = np.stack([dst_left[split], dst_right[split]], axis=1).reshape(-1)
+        node_count = np.stack([n_left[split], n_right[split]], axis=1).reshape(-1)
+        ref_tri, ref_box = out_tri, out_box
+        depth += 1
+
+    nodes = np.concatenate(node_levels)
+    objects = np.concatenate(object_levels)
+    root_area = float(_node_areas(bounds.reshape(1, 6))[0])
+    sah_cost = weighted_cost / root_area if root_area > 0 else float("nan")
+    return KdTree(nodes, objects, bounds, depth, params, time.perf_counter() - t0, sah_cost)
+
+
+def _node_areas(box: np.ndarray) -> np.ndarray:
+    d = box[:, 3:].astype(np.float64) - box[:, :3]
+    return 2.0 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
+
+
+def kd_stats(tree: KdTree, n_triangles: int) -> dict:
+    """The paper's Table 2 columns (and a few more) for a built tree.
+
+    size_bytes counts nodes (8 B), object list entries (4 B), and per triangle 3 float4 vertices
+    plus 3 float4 vertex normals (96 B): the layout of Fig. 2, which gives the paper's 11 MB BUNNY.
+    """
+    leaf = tree.is_leaf()
+    counts = tree.child_or_count()[leaf]
+    nonempty = int((counts > 0).sum())
+    n_nodes = len(tree.nodes)
+    return {
+        "triangles": int(n_triangles),
+        "nodes": n_nodes,
+        "nonempty_leaves": nonempty,
+        "refs_per_nonempty_leaf": float(counts.sum() / nonempty) if nonempty else 0.0,
+        "size_bytes": int(n_nodes * 8 + len(tree.objects) * 4 + n_triangles * 48 + n_triangles * 48),
+        "depth": int(tree.depth),
+        "leaves": int(leaf.sum()),
+        "empty_leaves": int(leaf.sum()) - nonempty,
+        "sah_cost": float(tree.sah_cost),
+        "build_seconds": float(tree.build_seconds),
+    }

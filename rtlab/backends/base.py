@@ -1,0 +1,99 @@
+"""The one small interface both backends implement.
+
+A backend owns a device and a queue/stream. ``compile(path, defines)`` gives a :class:`Program`;
+programs launch kernels with an explicit global size and block (work-group) shape and return the
+device-event time of the launch; ``resources`` reports what the compiler gave the kernel.
+
+Constant memory differs by API: CUDA kernels read ``__constant__`` symbols named ``c_<name>``,
+OpenCL kernels take ``__constant`` pointer arguments, last, in the order the launch names them.
+``Program.set_constant(name, array)`` and ``launch(..., constants=[names])`` hide that.
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class KernelResources:
+    """What the compiler gave a kernel, and the occupancy at a launch shape where known."""
+    kernel: str
+    backend: str
+    registers: int | None = None          # CUDA registers per thread (NVIDIA OpenCL: from its build log)
+    local_bytes: int | None = None        # CUDA local memory (stack) per thread / OpenCL private memory
+    shared_bytes: int | None = None       # CUDA shared memory / OpenCL local memory per block
+    const_bytes: int | None = None        # CUDA constant memory used by the module
+    spill_bytes: int | None = None        # spill stores + loads (offline nvcc report only)
+    max_block: int | None = None          # largest block/work-group the kernel can launch with
+    block: tuple[int, ...] | None = None  # the launch shape occupancy refers to
+    occupancy: float | None = None        # resident warps / maximum, 0..1 (CUDA)
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def round_up(n: int, m: int) -> int:
+    return int(math.ceil(n / m) * m)
+
+
+class Program(ABC):
+    """A compiled kernel source with one define set."""
+
+    def __init__(self, backend: "Backend", path: Path, defines: dict):
+        self.backend = backend
+        self.path = path
+        self.defines = dict(defines)
+
+    @abstractmethod
+    def set_constant(self, name: str, array: np.ndarray) -> None:
+        """Upload ``array`` to the constant-memory item ``name`` (CUDA symbol ``c_<name>``)."""
+
+    @abstractmethod
+    def launch(self, kernel: str, global_size: tuple[int, ...], block: tuple[int, ...],
+               args: list, constants: tuple[str, ...] = ()) -> float:
+        """Run ``kernel`` over ``global_size`` work items in blocks of ``block``; returns device ms.
+        ``global_size`` is rounded up to whole blocks; kernels guard their own bounds."""
+
+    @abstractmethod
+    def resources(self, kernel: str, block: tuple[int, ...] | None = None) -> KernelResources:
+        ...
+
+
+class Backend(ABC):
+    name: str          # "opencl" or "cuda"
+    language: str      # which kernel tree: "opencl" (.cl) or "cuda" (.cu)
+    extension: str
+    device_name: str
+    platform_name: str
+
+    @abstractmethod
+    def compile(self, path: Path, defines: dict) -> Program: ...
+
+    @abstractmethod
+    def to_device(self, array: np.ndarray):
+        """A read-only device copy of ``array`` (C-contiguous)."""
+
+    @abstractmethod
+    def empty(self, nbytes: int):
+        """An uninitialised device buffer of ``nbytes`` (at least 1 byte)."""
+
+    @abstractmethod
+    def to_host(self, buffer, dtype, count: int) -> np.ndarray: ...
+
+    @abstractmethod
+    def fill(self, buffer, array: np.ndarray) -> None:
+        """Copy ``array`` into an existing device buffer."""
+
+    @abstractmethod
+    def synchronize(self) -> None: ...
+
+    @abstractmethod
+    def is_gpu(self) -> bool: ...
+
+    def describe(self) -> str:
+        return f"{self.name}: {self.device_name} ({self.platform_name})"

@@ -1,0 +1,180 @@
+"""CUDA backend through pycuda (optional: ``pip install rtlab[cuda]``; needs a CUDA driver).
+
+pycuda is imported only here, lazily, so every other part of rtlab works without it.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BackendError, KernelBuildError
+from ..occupancy import SmLimits, cuda_occupancy
+from ..paths import SHARED_KERNEL_DIR
+from .base import Backend, KernelResources, Program, round_up
+
+
+def _pycuda():
+    try:
+        import pycuda.driver as drv
+    except ImportError as e:
+        raise BackendError(f"CUDA backend unavailable: pycuda is not installed ({e}); "
+                           "`pip install 'rtlab[cuda]'` on a machine with nvcc and a CUDA driver") from None
+    try:
+        drv.init()
+        if drv.Device.count() == 0:
+            raise BackendError("CUDA backend unavailable: the CUDA driver sees no GPU")
+    except drv.Error as e:
+        raise BackendError(f"CUDA backend unavailable: no working CUDA driver ({e})") from None
+    return drv
+
+
+def list_devices() -> list[str]:
+    drv = _pycuda()
+    return [drv.Device(i).name() for i in range(drv.Device.count())]
+
+
+class CudaProgram(Program):
+    def __init__(self, backend: "CudaBackend", path: Path, defines: dict, module):
+        super().__init__(backend, path, defines)
+        self._module = module
+        self._functions: dict = {}
+        self._constants: dict = {}
+
+    def function(self, name: str):
+        if name not in self._functions:
+            self._functions[name] = self._module.get_function(name)
+        return self._functions[name]
+
+    def set_constant(self, name, array):
+        drv = self.backend.drv
+        data = np.ascontiguousarray(array).tobytes()
+        if self._constants.get(name) == data:
+            return
+        ptr, size = self._module.get_global(f"c_{name}")
+        if len(data) > size:
+            raise KernelBuildError(f"constant c_{name} holds {size} bytes, {len(data)} given "
+                                   f"(raise RT_MAX_* for this scene)")
+        drv.memcpy_htod(ptr, np.frombuffer(data, np.uint8))
+        self._constants[name] = data
+
+    def launch(self, kernel, global_size, block, args, constants=()):
+        drv = self.backend.drv
+        block3 = tuple(block) + (1,) * (3 - len(block))
+        grid = tuple(round_up(g, b) // b for g, b in zip(global_size, block))
+        grid3 = grid + (1,) * (3 - len(grid))
+        start, end = drv.Event(), drv.Event()
+        start.record()
+        self.function(kernel)(*args, block=block3, grid=grid3[:2] if grid3[2] == 1 else grid3)
+        end.record()
+        end.synchronize()
+        return end.time_since(start)
+
+    def resources(self, kernel, block=None):
+        drv = self.backend.drv
+        f = self.function(kernel)
+        attr = drv.function_attribute
+        res = KernelResources(kernel=kernel, backend="cuda",
+                              registers=f.get_attribute(attr.NUM_REGS),
+                              local_bytes=f.get_attribute(attr.LOCAL_SIZE_BYTES),
+                              shared_bytes=f.get_attribute(attr.SHARED_SIZE_BYTES),
+                              const_bytes=f.get_attribute(attr.CONST_SIZE_BYTES),
+                              max_block=f.get_attribute(attr.MAX_THREADS_PER_BLOCK),
+                              block=tuple(block) if block else None)
+        if block:
+            threads = int(np.prod(block))
+            res.occupancy = cuda_occupancy(res.registers, threads, res.shared_bytes, self.backend.limits)
+        return res
+
+
+class CudaBackend(Backend):
+    name = "cuda"
+    language = "cuda"
+    extension = ".cu"
+
+    def __init__(self, device: str | None = None):
+        drv = _pycuda()
+        self.drv = drv
+        want = device if device is not None else os.environ.get("RTLAB_CUDA_DEVICE")
+        index = 0
+        if want:
+            names = [drv.Device(i).name() for i in range(drv.Device.count())]
+            if want.isdigit() and int(want) < len(names):
+                index = int(want)
+            else:
+                matches = [i for i, n in enumerate(names) if want.lower() in n.lower()]
+                if not matches:
+                    raise BackendError(f"no CUDA device matches '{want}'; available: {', '.join(names)}")
+                index = matches[0]
+        self.cuda_device = drv.Device(index)
+        self.context = self.cuda_device.retain_primary_context()
+        self.context.push()
+        import atexit
+        atexit.register(self._release)
+        a = drv.device_attribute
+        cc = self.cuda_device.compute_capability()
+        self.arch = f"sm_{cc[0]}{cc[1]}"
+        d = self.cuda_device
+        self.limits = SmLimits(
+            name=self.arch,
+            max_warps=d.get_attribute(a.MAX_THREADS_PER_MULTIPROCESSOR) // 32,
+            max_blocks=d.get_attribute(a.MAX_BLOCKS_PER_MULTIPROCESSOR),
+            registers=d.get_attribute(a.MAX_REGISTERS_PER_MULTIPROCESSOR),
+            shared_bytes=d.get_attribute(a.MAX_SHARED_MEMORY_PER_MULTIPROCESSOR))
+        self.device_name = d.name()
+        self.platform_name = f"CUDA driver {drv.get_driver_version()}, {self.arch}"
+        self._programs: dict = {}
+
+    def _release(self):
+        try:
+            self.context.pop()
+        except Exception:
+            pass
+
+    def is_gpu(self) -> bool:
+        return True
+
+    def compile(self, path, defines):
+        from pycuda.compiler import SourceModule
+        import pycuda.driver as drv
+        key = (str(path), tuple(sorted(defines.items())))
+        if key in self._programs:
+            return self._programs[key]
+        text = Path(path).read_text()
+        source = f'#line 1 "{path}"\n{text}'
+        options = [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        extra = os.environ.get("RTLAB_NVCC_OPTIONS")
+        if extra:
+            options += extra.split()
+        try:
+            module = SourceModule(source, options=options, include_dirs=[str(SHARED_KERNEL_DIR), str(Path(path).parent)],
+                                  no_extern_c=True, arch=self.arch)
+        except drv.CompileError as e:
+            from .opencl import format_build_error
+            raise KernelBuildError(format_build_error(path, defines, e.stderr or str(e))) from None
+        prog = CudaProgram(self, Path(path), defines, module)
+        self._programs[key] = prog
+        return prog
+
+    def to_device(self, array):
+        data = np.ascontiguousarray(array)
+        if data.nbytes == 0:
+            data = np.zeros(4, np.uint8)
+        return self.drv.to_device(data)
+
+    def empty(self, nbytes):
+        return self.drv.mem_alloc(max(int(nbytes), 4))
+
+    def fill(self, buffer, array):
+        self.drv.memcpy_htod(buffer, np.ascontiguousarray(array))
+
+    def to_host(self, buffer, dtype, count):
+        out = np.empty(count, dtype)
+        if count:
+            self.drv.memcpy_dtoh(out, buffer)
+        return out
+
+    def synchronize(self):
+        self.drv.Context.synchronize()

@@ -1,0 +1,203 @@
+"""OpenCL backend through pyopencl: PoCL on a CPU, NVIDIA's OpenCL on a GPU."""
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BackendError, KernelBuildError
+from ..paths import SHARED_KERNEL_DIR
+from .base import Backend, KernelResources, Program, round_up
+
+POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
+             "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as e:  # pragma: no cover - pyopencl is a hard dependency
+        raise BackendError(f"pyopencl is not installed ({e}); `pip install pyopencl`") from None
+    return cl
+
+
+def list_devices() -> list[tuple[int, int, object, object]]:
+    """(platform index, device index, platform, device) for every OpenCL device."""
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.LogicError:
+        platforms = []
+    out = []
+    for pi, p in enumerate(platforms):
+        try:
+            devices = p.get_devices()
+        except cl.Error:
+            continue
+        out += [(pi, di, p, d) for di, d in enumerate(devices)]
+    return out
+
+
+def _version_key(platform) -> tuple:
+    nums = re.findall(r"\d+", platform.version.split("PoCL")[-1] if "PoCL" in platform.version else platform.version)
+    return tuple(int(n) for n in nums[:3])
+
+
+def choose_device(device: str | None = None):
+    """Pick a device: by name substring or 'P:D' indices (``device`` or ``$PYOPENCL_CTX``); else the
+    first GPU; else the CPU device of the newest platform (two PoCL installs can coexist)."""
+    cl = _cl()
+    found = list_devices()
+    if not found:
+        raise BackendError(POCL_HINT)
+    want = device if device is not None else os.environ.get("PYOPENCL_CTX")
+    if want:
+        m = re.fullmatch(r"(\d+)(?::(\d+))?", want.strip())
+        if m:
+            pi, di = int(m.group(1)), int(m.group(2) or 0)
+            for fp, fd, p, d in found:
+                if (fp, fd) == (pi, di):
+                    return p, d
+        for _, _, p, d in found:
+            if want.lower() in d.name.lower() or want.lower() in p.name.lower():
+                return p, d
+        names = ", ".join(f"{pi}:{di} {d.name.strip()} [{p.name}]" for pi, di, p, d in found)
+        raise BackendError(f"no OpenCL device matches '{want}'; available: {names}")
+    gpus = [(p, d) for _, _, p, d in found if d.type & cl.device_type.GPU]
+    if gpus:
+        return gpus[0]
+    ranked = sorted(found, key=lambda f: _version_key(f[2]), reverse=True)
+    return ranked[0][2], ranked[0][3]
+
+
+class OpenCLProgram(Program):
+    def __init__(self, backend: "OpenCLBackend", path: Path, defines: dict, program, build_log: str):
+        super().__init__(backend, path, defines)
+        self._program = program
+        self._kernels: dict = {}
+        self._constants: dict = {}
+        self.build_log = build_log
+
+    def kernel(self, name: str):
+        if name not in self._kernels:
+            self._kernels[name] = getattr(self._program, name)
+        return self._kernels[name]
+
+    def set_constant(self, name: str, array: np.ndarray) -> None:
+        data = np.ascontiguousarray(array)
+        old = self._constants.get(name)
+        if old is not None and old[1] == data.tobytes():
+            return
+        self._constants[name] = (self.backend.to_device(data), data.tobytes())
+
+    def launch(self, kernel, global_size, block, args, constants=()):
+        cl = _cl()
+        gsize = tuple(round_up(g, b) for g, b in zip(global_size, block))
+        try:
+            const_bufs = [self._constants[c][0] for c in constants]
+        except KeyError as e:
+            raise KernelBuildError(f"constant {e} was not set before launching {kernel}") from None
+        event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
+        event.wait()
+        return (event.profile.end - event.profile.start) * 1e-6
+
+    def resources(self, kernel, block=None):
+        cl = _cl()
+        k = self.kernel(kernel)
+        dev = self.backend.device
+        info = cl.kernel_work_group_info
+        res = KernelResources(kernel=kernel, backend="opencl",
+                              local_bytes=int(k.get_work_group_info(info.PRIVATE_MEM_SIZE, dev)),
+                              shared_bytes=int(k.get_work_group_info(info.LOCAL_MEM_SIZE, dev)),
+                              max_block=int(k.get_work_group_info(info.WORK_GROUP_SIZE, dev)),
+                              block=tuple(block) if block else None)
+        # NVIDIA's compiler reports registers in its build log with -cl-nv-verbose
+        m = re.search(rf"Function properties for {kernel}.*?Used (\d+) registers", self.build_log, re.S)
+        if m:
+            res.registers = int(m.group(1))
+        return res
+
+
+class OpenCLBackend(Backend):
+    name = "opencl"
+    language = "opencl"
+    extension = ".cl"
+
+    def __init__(self, device: str | None = None):
+        cl = _cl()
+        self.platform, self.device = choose_device(device)
+        self.context = cl.Context([self.device])
+        self.queue = cl.CommandQueue(self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        self.device_name = self.device.name.strip()
+        self.platform_name = f"{self.platform.name.strip()} {self.platform.version.strip()}"
+        self._programs: dict = {}
+
+    def is_gpu(self) -> bool:
+        return bool(self.device.type & _cl().device_type.GPU)
+
+    def is_nvidia(self) -> bool:
+        return "NVIDIA" in self.platform.name
+
+    def compile(self, path: Path, defines: dict) -> OpenCLProgram:
+        cl = _cl()
+        key = (str(path), tuple(sorted(defines.items())))
+        if key in self._programs:
+            return self._programs[key]
+        text = Path(path).read_text()
+        # '#line' makes compiler messages name the real file instead of '<source>'
+        source = f'#line 1 "{path}"\n{text}'
+        options = [f"-I{SHARED_KERNEL_DIR}", f"-I{Path(path).parent}"]
+        options += [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        if self.is_nvidia():
+            options.append("-cl-nv-verbose")
+        extra = os.environ.get("RTLAB_CL_OPTIONS")
+        if extra:
+            options += extra.split()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
+                program = cl.Program(self.context, source).build(options=options)
+        except cl.RuntimeError as e:
+            raise KernelBuildError(format_build_error(path, defines, str(e))) from None
+        try:
+            log = program.get_build_info(self.device, cl.program_build_info.LOG) or ""
+        except cl.Error:
+            log = ""
+        prog = OpenCLProgram(self, Path(path), defines, program, log)
+        self._programs[key] = prog
+        return prog
+
+    def to_device(self, array):
+        cl = _cl()
+        data = np.ascontiguousarray(array)
+        if data.nbytes == 0:
+            data = np.zeros(4, np.uint8)
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=data)
+
+    def empty(self, nbytes):
+        cl = _cl()
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 4))
+
+    def fill(self, buffer, array):
+        _cl().enqueue_copy(self.queue, buffer, np.ascontiguousarray(array)).wait()
+
+    def to_host(self, buffer, dtype, count):
+        out = np.empty(count, dtype)
+        if count:
+            _cl().enqueue_copy(self.queue, out, buffer).wait()
+        return out
+
+    def synchronize(self):
+        self.queue.finish()
+
+
+def format_build_error(path, defines: dict, log: str) -> str:
+    """The compiler's error lines first (file:line: error ...), then the defines that were set."""
+    lines = [ln for ln in log.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if re.search(r"error", ln, re.I)]
+    shown = (errors or lines)[:12]
+    defs = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()))
+    return f"kernel {path} failed to compile (defines: {defs}):\n" + "\n".join("  " + ln for ln in shown)

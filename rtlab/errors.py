@@ -1,0 +1,21 @@
+"""User-facing errors. Each says what went wrong and where; the CLI prints them in one line, no traceback."""
+
+
+class RtlabError(Exception):
+    """Base class: an error the user can act on (bad input, missing device, failed build)."""
+
+
+class SceneError(RtlabError):
+    """A scene could not be found, loaded or validated (missing file, malformed mesh, NaN vertices...)."""
+
+
+class BackendError(RtlabError):
+    """A backend or device is unavailable or unknown."""
+
+
+class KernelBuildError(RtlabError):
+    """A kernel failed to compile. The message carries the file, the defines and the compiler log."""
+
+
+class VariantError(RtlabError):
+    """An unknown variant name (traversal, intersection test, memory placement...)."""
