@@ -1,11 +1,15 @@
-"""A scene on a device: its kd-tree and triangle data in the paper's layout (Fig. 2), uploaded once.
+"""A scene on a device: its acceleration structure and triangle data in the paper's layout (Fig. 2),
+uploaded once per backend.
 
-Buffers follow RT_SCENE_PARAMS in kernels/shared/rt_memory.h: nodes, objects, tris, normals,
-tri_materials. Per-frame constants (camera, scene box, lights, materials) go to constant memory.
+Buffers follow RT_SCENE_PARAMS in kernels/shared/rt_memory.h: nodes, node_data, objects, tris,
+tri_data, normals, tri_materials. What a variant needs beyond the kd-tree (ropes, a BVH, data
+precomputed for an intersection test) comes from the registries below, built on first use and kept.
+Per-frame constants (camera, scene box, lights, materials) go to constant memory.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -16,6 +20,28 @@ from .scene.model import Camera, Scene
 
 BACKGROUND = (0.10, 0.10, 0.12)
 AMBIENT = 0.15
+DUMMY_F4 = np.zeros((1, 4), np.float32)
+
+
+@dataclass
+class AccelArrays:
+    """What one traversal family reads: nodes (int2), node_data (float4), objects (int)."""
+    nodes: np.ndarray
+    node_data: np.ndarray
+    objects: np.ndarray
+    bounds: np.ndarray          # (2, 3) root box
+    stack_size: int
+
+
+def kd_accel(scene, tree) -> AccelArrays:
+    return AccelArrays(tree.nodes, DUMMY_F4, tree.objects, tree.bounds, tree.depth + 1)
+
+
+# traversal name -> builder(scene, kd_tree) -> AccelArrays. Variants that read more than the plain
+# kd-tree (ropes, BVH) register theirs; every other traversal reads the kd-tree as built.
+ACCEL_BUILDERS: dict[str, Callable] = {}
+# intersection test name -> builder(scene) -> (3F or F, 4) float32 precomputed per-triangle data
+TRI_DATA_BUILDERS: dict[str, Callable] = {}
 
 
 def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=None) -> KdTree:
@@ -25,8 +51,8 @@ def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=Non
     return tree
 
 
-def scene_features(scene: Scene, tree: KdTree) -> SceneFeatures:
-    return SceneFeatures(stack_size=tree.depth + 1,
+def scene_features(scene: Scene, stack_size: int) -> SceneFeatures:
+    return SceneFeatures(stack_size=stack_size,
                          smooth_normals=scene.vertex_normals is not None,
                          n_lights=max(1, len(scene.lights)),
                          n_materials=max(1, len(scene.materials)))
@@ -92,28 +118,50 @@ class DeviceScene:
     backend: object
     scene: Scene
     tree: KdTree
-    features: SceneFeatures
-    buffers: dict
+    buffers: dict                                   # per-scene buffers: tris, normals, tri_materials
+    accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [device buffers])
+    tri_data: dict = field(default_factory=dict)    # intersection test -> device buffer
 
     @classmethod
     def upload(cls, backend, scene: Scene, tree: KdTree | None = None) -> "DeviceScene":
         tree = tree if tree is not None else scene_kdtree(scene)
         buffers = {
-            "nodes": backend.to_device(tree.nodes),
-            "objects": backend.to_device(tree.objects if tree.objects.size else np.zeros(1, np.int32)),
             "tris": backend.to_device(triangle_corners(scene)),
             "normals": backend.to_device(triangle_normals(scene)),
             "tri_materials": backend.to_device(np.ascontiguousarray(scene.material_ids, np.int32)),
         }
-        return cls(backend, scene, tree, scene_features(scene, tree), buffers)
+        return cls(backend, scene, tree, buffers)
 
-    def scene_args(self) -> list:
-        """Buffers in RT_SCENE_PARAMS order."""
+    def _accel(self, traversal: str):
+        family = traversal if traversal in ACCEL_BUILDERS else "kd"
+        if family not in self.accel:
+            arrays = ACCEL_BUILDERS[family](self.scene, self.tree) if family != "kd" else kd_accel(self.scene, self.tree)
+            objects = arrays.objects if arrays.objects.size else np.zeros(1, np.int32)
+            bufs = [self.backend.to_device(arrays.nodes), self.backend.to_device(arrays.node_data),
+                    self.backend.to_device(objects)]
+            self.accel[family] = (arrays, bufs)
+        return self.accel[family]
+
+    def _tri_data(self, intersection: str):
+        if intersection not in self.tri_data:
+            builder = TRI_DATA_BUILDERS.get(intersection)
+            data = builder(self.scene) if builder else DUMMY_F4
+            self.tri_data[intersection] = self.backend.to_device(np.ascontiguousarray(data, np.float32))
+        return self.tri_data[intersection]
+
+    def features(self, variant) -> SceneFeatures:
+        return scene_features(self.scene, self._accel(variant.traversal)[0].stack_size)
+
+    def scene_args(self, variant) -> list:
+        """Buffers in RT_SCENE_PARAMS order for this variant."""
+        _, (nodes, node_data, objects) = self._accel(variant.traversal)
         b = self.buffers
-        return [b["nodes"], b["objects"], b["tris"], b["normals"], b["tri_materials"]]
+        return [nodes, node_data, objects, b["tris"], self._tri_data(variant.intersection), b["normals"],
+                b["tri_materials"]]
 
-    def set_constants(self, program, camera: Camera | None) -> None:
-        program.set_constant("frame", frame_constants(camera, self.tree.bounds, len(self.scene.lights),
+    def set_constants(self, program, camera: Camera | None, variant) -> None:
+        bounds = self._accel(variant.traversal)[0].bounds
+        program.set_constant("frame", frame_constants(camera, bounds, len(self.scene.lights),
                                                       len(self.scene.materials)))
         program.set_constant("lights", light_constants(self.scene))
         program.set_constant("materials", material_constants(self.scene))

@@ -42,12 +42,12 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     variant = variant or Variant()
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)
-    program = load_program(backend, PRIMARY_STEP, variant, ds.features, RT_WRITE_HITS=int(write_hits))
-    ds.set_constants(program, camera)
+    program = load_program(backend, PRIMARY_STEP, variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))
+    ds.set_constants(program, camera, variant)
     n = camera.width * camera.height
     pixels = backend.empty(n * 4)
     hits = backend.empty(n * HIT_DTYPE.itemsize if write_hits else 4)
-    args = ds.scene_args() + [pixels, hits]
+    args = ds.scene_args(variant) + [pixels, hits]
     launch = lambda: program.launch("render_primary", (camera.width, camera.height), variant.block, args,
                                     constants=("frame", "lights", "materials"))
     for _ in range(warmup):

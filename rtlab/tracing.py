@@ -74,13 +74,13 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     if n == 0:
         empty = np.zeros(0, np.float32)
         return TraceResult(empty, np.zeros(0, np.int32), empty, empty, 0.0, backend.name, backend.device_name)
-    program = load_program(backend, PRIMARY_STEP, variant, ds.features)
-    ds.set_constants(program, None)
+    program = load_program(backend, PRIMARY_STEP, variant, ds.features(variant))
+    ds.set_constants(program, None, variant)
     o_buf = backend.to_device(float4_rows(origins, tmin))
     d_buf = backend.to_device(float4_rows(directions, tmax))
     h_buf = backend.empty(n * HIT_DTYPE.itemsize)
     ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
-                        ds.scene_args() + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
+                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     return TraceResult(t, tri, u, v, ms, backend.name, backend.device_name)
 

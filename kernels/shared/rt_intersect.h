@@ -2,6 +2,7 @@
  * Each test updates *hit only for a hit nearer than hit->t and beyond ray->tmin, and says whether it did. */
 #ifndef RT_INTERSECT_H
 #define RT_INTERSECT_H
+#include "rt_memory.h"
 #include "rt_types.h"
 
 /* Moller & Trumbore, "Fast, minimum storage ray/triangle intersection", JGT 1997.
@@ -33,6 +34,15 @@ RT_FN int intersect_ray_tri_moller(const Ray *ray, float3 v0, float3 v1, float3 
     hit->v = v;
     hit->tri = tri;
     return 1;
+}
+
+/* The test chosen by RT_ISECT, on triangle tri of the scene (the paper's Table 3 variable). */
+RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
+{
+    float3 v0 = xyz(load_tri_vertex(tri, 0));
+    float3 v1 = xyz(load_tri_vertex(tri, 1));
+    float3 v2 = xyz(load_tri_vertex(tri, 2));
+    return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
 }
 
 /* Clip the ray to an axis-aligned box: slab test (Kay & Kajiya). A zero direction component gives

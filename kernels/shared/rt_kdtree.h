@@ -18,11 +18,7 @@ RT_FN void intersect_leaf(RT_SCENE_PARAMS, int2 leaf, const Ray *ray, Hit *hit)
 {
     int count = leaf.x >> 2;
     for (int i = 0; i < count; ++i) {
-        int tri = load_object(leaf.y + i);
-        float3 v0 = xyz(load_tri_vertex(tri, 0));
-        float3 v1 = xyz(load_tri_vertex(tri, 1));
-        float3 v2 = xyz(load_tri_vertex(tri, 2));
-        intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
+        intersect_tri(RT_SCENE_ARGS, ray, load_object(leaf.y + i), hit);
     }
 }
 

@@ -3,7 +3,7 @@
  * and call these. */
 #ifndef RT_PRIMARY_H
 #define RT_PRIMARY_H
-#include "rt_kdtree.h"
+#include "rt_traverse.h"
 #include "rt_shade.h"
 
 /* Closest hit of one ray: the work of trace_rays. origin.w = tmin, direction.w = tmax. */
@@ -11,7 +11,7 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
 {
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
     Hit hit = make_miss(ray.tmax);
-    traverse_kd_stack(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, &hit);
+    trace_closest(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, &hit);
     return hit;
 }
 
@@ -22,7 +22,7 @@ RT_FN unsigned int render_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
 {
     Ray ray = camera_ray(frame, x, y);
     *hit = make_miss(ray.tmax);
-    traverse_kd_stack(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, hit);
+    trace_closest(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, hit);
     return pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &ray, hit));
 }
 
