@@ -126,6 +126,67 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     console.print(f"wrote {out}")
 
 
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: the paper's tables on the current device.")
+app.add_typer(bench_app, name="bench")
+
+
+def _bench_scenes(scenes: str, views: str, size: int):
+    """(scene, view label) pairs: preset cameras, or the benchmark views of ../shared/bench."""
+    from .scene import bench_camera, load_scene
+    out = []
+    for name in [s for s in scenes.split(",") if s]:
+        scene = _load_scene(name, size)
+        if views == "preset":
+            out.append((scene, "preset"))
+            continue
+        for view in views.split(","):
+            vs = load_scene(name, size=size)
+            vs.camera = bench_camera(f"{name}/{view}", size)
+            out.append((vs, view))
+    return out
+
+
+@bench_app.command("primary")
+def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
+                  backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                  device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                  size: int = typer.Option(1024, help="image width = height"),
+                  views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
+                  repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                  check: bool = typer.Option(True, help="error against the float64 reference"),
+                  traversal: str = typer.Option("stack"), isect: str = typer.Option("moller"),
+                  block: str = typer.Option("32x4"),
+                  md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """Primary rays with simple shading (the paper's Table 4 setting): time, Mrays/s, error."""
+    from .backends import get_backend
+    from .bench import PAPER_STACK_FPS, bench_render, rows_markdown
+    from .kernels import Variant
+    bx, by = (int(v) for v in block.lower().split("x"))
+    variant = Variant(traversal=traversal, intersection=isect, block=(bx, by))
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    rows = []
+    for scene, view in _bench_scenes(scenes, views, size):
+        _tree(scene)
+        for be in bes:
+            with console.status(f"{scene.name}/{view} on {be.name}..."):
+                rows.append(bench_render(scene, be, variant, repeats=repeats, check=check, view=view))
+            r = rows[-1]
+            console.print(f"{r.scene}/{r.view} {r.backend}: {r.median_ms:.3f} ms, {r.mrays:,.0f} Mrays/s; {r.error_text()}")
+    table = Table(title=f"primary rays, {size}x{size}, {variant.label()}")
+    for col in ("scene", "view", "backend", "device", "median ms", "Mrays/s", "fps", "paper fps", "regs", "occ.", "error"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        paper = PAPER_STACK_FPS.get(r.scene)
+        table.add_row(r.scene, r.view, r.backend, r.device, f"{r.median_ms:.3f}", f"{r.mrays:,.0f}", f"{r.fps:,.0f}",
+                      f"{paper}" if paper and size == 1024 else "-", str(r.registers or "-"),
+                      f"{r.occupancy:.0%}" if r.occupancy is not None else "-", r.error_text())
+    console.print(table)
+    if md:
+        cmd = "rtlab bench primary " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench primary"
+        with open(md, "a") as f:
+            f.write(rows_markdown(rows, f"Primary rays, {size}x{size}", cmd) + "\n")
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     try:
         app(args=argv, standalone_mode=False)

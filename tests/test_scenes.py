@@ -1,0 +1,409 @@
+"""Scene loading: the real scene files (counts, bounds, materials, checksums), the procedural default
+scene, the mesh cache, and clear SceneErrors for bad input."""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtlab.errors import SceneError
+from rtlab.paths import find_scene_file, scene_search_dirs
+from rtlab.scene import (PRESETS, Camera, Material, Scene, bench_camera, list_scenes, load_mesh_file,
+                         load_scene, scene_warnings)
+from rtlab.scene.loader import load_preset, parse_mtl
+from rtlab.scene.presets import Preset
+
+# From ../shared/scenes/SOURCES.md (trimesh 4.x, process=False): triangles, vertices, bbox.
+SOURCES = {
+    "bunny": (69_451, 35_947, (-0.0946899, 0.0329874, -0.0618736), (0.0610091, 0.187321, 0.0587997)),
+    "sponza": (66_450, 61_014, (-17.409, -0.999001, -7.801), (17.411, 15.561, 7.799)),
+    "kitchen": (103_343, 54_838, (-2, -1.1, -3.75), (6, 2.9, 4.33)),
+    "dragon": (871_414, 437_645, (-0.108324, 0.0527295, -0.0504143), (0.0965662, 0.197173, 0.0412075)),
+    "conference": (331_179, 194_399, (-1020.13, -2.7924, -1055.66), (1685.81, 650.293, 668.489)),
+}
+
+
+def _scene_file_or_skip(name: str) -> Path:
+    preset = PRESETS[name]
+    path = find_scene_file(preset.relpath)
+    if path is None:
+        reason = (f"scene file {preset.relpath} not found in any of "
+                  f"{', '.join(str(d) for d in scene_search_dirs())}")
+        if os.environ.get("CI") == "true":
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return path
+
+
+@pytest.fixture(scope="module")
+def preset_scenes():
+    """Each preset loaded once for the whole module (parsed once, then from the mesh cache)."""
+    loaded: dict[str, Scene] = {}
+
+    def get(name: str) -> Scene:
+        _scene_file_or_skip(name)
+        if name not in loaded:
+            loaded[name] = load_scene(name)
+        return loaded[name]
+    return get
+
+
+# ---- the real scene files ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", list(SOURCES))
+def test_preset_counts_and_bounds(preset_scenes, name):
+    n_triangles, n_vertices, lo, hi = SOURCES[name]
+    scene = preset_scenes(name)
+    assert scene.n_triangles == n_triangles == PRESETS[name].file_triangles
+    assert len(scene.vertices) == n_vertices
+    assert scene.vertices.dtype == np.float32 and scene.vertices.shape == (n_vertices, 3)
+    assert scene.faces.dtype == np.int32 and scene.faces.shape == (n_triangles, 3)
+    assert scene.material_ids.dtype == np.int32 and scene.material_ids.shape == (n_triangles,)
+    assert 0 <= scene.material_ids.min() and scene.material_ids.max() < len(scene.materials)
+    diagonal = np.linalg.norm(np.subtract(hi, lo))
+    np.testing.assert_allclose(scene.bounds(), [lo, hi], atol=1e-5 * diagonal)
+
+
+@pytest.mark.parametrize("name", list(SOURCES))
+def test_preset_camera_light_and_normals(preset_scenes, name):
+    scene = preset_scenes(name)
+    preset = PRESETS[name]
+    assert scene.camera == bench_camera(preset.view, 1024)
+    assert (scene.camera.width, scene.camera.height, scene.camera.fov_deg) == (1024, 1024, 40.0)
+    assert len(scene.lights) == 1
+    light = np.array(scene.lights[0].position)
+    lo, hi = scene.bounds()
+    if preset.light_position is not None:  # indoor scenes: the light is inside the scene's box
+        assert np.all(light > lo) and np.all(light < hi)
+    if preset.smooth_normals:
+        assert scene.vertex_normals is not None and scene.vertex_normals.shape == scene.vertices.shape
+        np.testing.assert_allclose(np.linalg.norm(scene.vertex_normals, axis=1), 1.0, atol=1e-5)
+    else:
+        assert scene.vertex_normals is None
+
+
+def test_paper_triangle_counts():
+    assert {n: p.paper_triangles for n, p in PRESETS.items()} == {
+        "bunny": 69_451, "sponza": 66_454, "kitchen": 103_343, "dragon": 871_414, "conference": 331_179}
+
+
+def _mtl_transparent_names(mtl_path: Path) -> set[str]:
+    """Names whose MTL `d` is below 1, read straight from the file."""
+    names, current = set(), None
+    for line in mtl_path.read_text().splitlines():
+        parts = line.split()
+        if parts[:1] == ["newmtl"]:
+            current = parts[1]
+        elif parts[:1] == ["d"] and float(parts[1]) < 1.0:
+            names.add(current)
+    return names
+
+
+@pytest.mark.parametrize("name, n_materials", [("sponza", 20), ("kitchen", 19)])
+def test_mtl_materials_kept(preset_scenes, name, n_materials):
+    scene = preset_scenes(name)
+    assert len({m.name for m in scene.materials}) == n_materials
+    assert set(np.unique(scene.material_ids)) == set(range(n_materials))
+    mtl = parse_mtl(Path(scene.source).with_suffix(".mtl"))
+    for material in scene.materials:
+        assert material == mtl[material.name]  # exact MTL floats, not 8-bit colours
+    transparent = _mtl_transparent_names(Path(scene.source).with_suffix(".mtl"))
+    assert {m.name for m in scene.materials if m.transparency > 0} == transparent
+    if name == "kitchen":
+        assert transparent == {"m15_glass", "m18_glass_dragon"}
+        glass = next(m for m in scene.materials if m.name == "m15_glass")
+        assert glass.transparency == pytest.approx(0.85) and glass.ior == pytest.approx(1.55)
+        assert glass.diffuse == (0.065, 0.065, 0.065)
+
+
+def test_ply_presets_get_one_grey_white_material(preset_scenes):
+    scene = preset_scenes("bunny")
+    assert len(scene.materials) == 1 and scene.materials[0].diffuse == (0.8, 0.8, 0.8)
+
+
+def test_scene_warnings_report_degenerate_triangles(preset_scenes):
+    warnings = scene_warnings(preset_scenes("kitchen"))
+    assert any("5 of 103343 triangles have zero area" in w for w in warnings)
+
+
+def test_cached_reload_is_fast(preset_scenes):
+    if os.environ.get("RTLAB_NO_CACHE", "") not in ("", "0"):
+        pytest.skip("RTLAB_NO_CACHE is set")
+    path = Path(preset_scenes("conference").source)
+    start = time.perf_counter()
+    mesh = load_mesh_file(path)
+    assert mesh.from_cache and time.perf_counter() - start < 1.0
+
+
+def test_checksums_match_sources():
+    for row in list_scenes():
+        _scene_file_or_skip(row["name"])
+        assert row["sha256"] == "ok", row
+        assert row["path"] and row["searched"] == [str(d) for d in scene_search_dirs()]
+
+
+def test_file_path_is_framed_like_the_far_view():
+    path = _scene_file_or_skip("bunny")
+    scene = load_scene(path, size=256)
+    far = bench_camera("bunny/far", 256)
+    np.testing.assert_allclose(scene.camera.eye, far.eye, atol=1e-5)
+    np.testing.assert_allclose(scene.camera.target, far.target, atol=1e-5)
+    assert scene.vertex_normals is not None  # "auto": a scan looks smooth
+    assert scene.name == "bunny" and len(scene.lights) == 1
+
+
+def test_preset_names_are_case_insensitive_and_size_applies(preset_scenes):
+    _scene_file_or_skip("bunny")
+    scene = load_scene("BUNNY", size=300)
+    assert (scene.camera.width, scene.camera.height) == (300, 300)
+    assert scene.n_triangles == preset_scenes("bunny").n_triangles
+
+
+# ---- the procedural default scene --------------------------------------------------------------
+
+def test_default_scene_shape_and_determinism():
+    scene = load_scene()
+    again = load_scene("procedural")
+    assert 40_000 <= scene.n_triangles <= 80_000
+    for field in ("vertices", "faces", "material_ids", "vertex_normals"):
+        assert np.array_equal(getattr(scene, field), getattr(again, field))
+    assert scene.materials == again.materials and scene.camera == again.camera
+    assert scene.vertices.dtype == np.float32 and scene.faces.dtype == np.int32
+    assert scene.material_ids.dtype == np.int32 and scene.material_ids.max() < len(scene.materials)
+    assert np.isfinite(scene.vertices).all()
+    np.testing.assert_allclose(np.linalg.norm(scene.vertex_normals, axis=1), 1.0, atol=1e-5)
+    assert not scene_warnings(scene)
+    assert all(m.reflectivity == 0 and m.transparency == 0 for m in scene.materials)
+    assert len(scene.lights) == 1 and (scene.camera.width, scene.camera.height) == (1024, 1024)
+    ground = scene.material_ids[: 2 * 128 * 128]
+    assert len(np.unique(ground)) == 2
+
+
+def test_default_scene_size():
+    assert load_scene("default", size=64).camera == Camera(
+        eye=(0.0, 5.0, 14.0), target=(0.0, 0.8, 0.0), width=64, height=64)
+
+
+# ---- bad input ---------------------------------------------------------------------------------
+
+@pytest.fixture
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("RTLAB_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("RTLAB_NO_CACHE", raising=False)
+    return tmp_path / "cache" / "meshes"
+
+
+def _ply(vertices, faces) -> str:
+    header = ["ply", "format ascii 1.0", f"element vertex {len(vertices)}", "property float x",
+              "property float y", "property float z", f"element face {len(faces)}",
+              "property list uchar int vertex_indices", "end_header"]
+    body = [" ".join(map(str, v)) for v in vertices] + [" ".join(map(str, [len(f), *f])) for f in faces]
+    return "\n".join(header + body) + "\n"
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+TRIANGLE = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+
+
+def _load_error(path) -> str:
+    with pytest.raises(SceneError) as caught:
+        load_mesh_file(path)
+    assert caught.value.__cause__ is None  # one line for the user, no trimesh traceback
+    return str(caught.value)
+
+
+def test_missing_file(tmp_path, private_cache):
+    message = _load_error(tmp_path / "nothing.ply")
+    assert str(tmp_path / "nothing.ply") in message
+
+
+def test_missing_preset_file_lists_every_directory_searched(private_cache):
+    preset = Preset(name="ghost", relpath="ghost/ghost.ply", sha256="0" * 64, paper_triangles=1,
+                    file_triangles=1, file_vertices=3, view="bunny/far", smooth_normals=False,
+                    light_position=None, description="not there")
+    with pytest.raises(SceneError) as caught:
+        load_preset(preset)
+    for directory in scene_search_dirs():
+        assert str(directory / "ghost/ghost.ply") in str(caught.value)
+
+
+def test_unknown_scene_names_the_scene_and_the_presets(private_cache):
+    with pytest.raises(SceneError) as caught:
+        load_scene("teapot")
+    message = str(caught.value)
+    assert "'teapot'" in message and all(name in message for name in PRESETS)
+
+
+def test_unknown_bench_view_lists_the_valid_ones():
+    with pytest.raises(SceneError) as caught:
+        bench_camera("bunny/close", 64)
+    assert "bunny/far" in str(caught.value) and "sponza/inside" in str(caught.value)
+
+
+@pytest.mark.parametrize("name, text", [
+    ("empty.ply", _ply(TRIANGLE, [])),
+    ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n"),
+    ("zero_bytes.obj", ""),
+])
+def test_empty_mesh(tmp_path, private_cache, name, text):
+    path = _write(tmp_path, name, text)
+    message = _load_error(path)
+    assert str(path) in message and "no triangles" in message
+
+
+@pytest.mark.parametrize("name, text", [
+    ("nan.ply", _ply([(0, 0, 0), (1, 0, "nan"), (0, 1, 0)], [(0, 1, 2)])),
+    ("inf.obj", "v 0 0 0\nv 1 0 inf\nv 0 1 0\nf 1 2 3\n"),
+])
+def test_non_finite_vertex(tmp_path, private_cache, name, text):
+    path = _write(tmp_path, name, text)
+    message = _load_error(path)
+    assert str(path) in message and "vertex 1" in message and ("NaN" in message)
+
+
+def test_face_index_out_of_range_ply(tmp_path, private_cache):
+    path = _write(tmp_path, "oor.ply", _ply(TRIANGLE, [(0, 1, 2), (0, 1, 5)]))
+    message = _load_error(path)
+    assert str(path) in message and "triangle 1" in message and "0..2" in message
+
+
+def test_face_index_out_of_range_obj(tmp_path, private_cache):
+    path = _write(tmp_path, "oor.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 7\n")
+    message = _load_error(path)
+    assert str(path) in message and "line 5" in message and "vertex 7" in message
+
+
+def test_all_degenerate_mesh(tmp_path, private_cache):
+    path = _write(tmp_path, "flat.ply", _ply([(0, 0, 0), (1, 1, 1), (2, 2, 2)], [(0, 1, 2), (0, 0, 1)]))
+    message = _load_error(path)
+    assert str(path) in message and "all 2 triangles have zero area" in message
+
+
+def test_some_degenerate_triangles_are_kept(tmp_path, private_cache):
+    path = _write(tmp_path, "some.ply", _ply([*TRIANGLE, (2, 0, 0)], [(0, 1, 2), (0, 1, 3), (2, 2, 1)]))
+    mesh = load_mesh_file(path)
+    assert mesh.n_triangles == 3 and mesh.n_degenerate == 2
+    assert any("2 of 3 triangles have zero area (first: triangle 1)" in w for w in mesh.warnings)
+
+
+def test_malformed_and_unsupported_files(tmp_path, private_cache):
+    garbage = _write(tmp_path, "garbage.ply", "this is not a ply file\n")
+    message = _load_error(garbage)
+    assert message.startswith(f"cannot read {garbage}")
+    unsupported = _write(tmp_path, "mesh.xyz", "1 2 3\n")
+    assert "unsupported file type '.xyz'" in _load_error(unsupported)
+
+
+# ---- OBJ+MTL details, glTF, the cache ----------------------------------------------------------
+
+MTL = """newmtl red
+Kd 0.7 0.1 0.1
+Ks 0.2 0.2 0.2
+Ns 30
+newmtl glass
+Kd 0.1 0.1 0.1
+d 0.25
+Ni 1.45
+newmtl tinted
+Kd 0.5
+Tr 0.4
+"""
+OBJ = """mtllib two.mtl
+v 0 0 0
+v 1 0 0
+v 0 1 0
+v 1 1 0
+v 0 0 1
+usemtl glass
+f 2 4 3
+usemtl red
+f 1 2 3
+f 1 3 5
+usemtl tinted
+f 1 5 2
+"""
+
+
+def test_obj_groups_and_mtl_values(tmp_path, private_cache):
+    _write(tmp_path, "two.mtl", MTL)
+    mesh = load_mesh_file(_write(tmp_path, "two.obj", OBJ))
+    assert [m.name for m in mesh.materials] == ["glass", "red", "tinted"]  # order of first use
+    glass, red, tinted = mesh.materials
+    assert red == Material("red", diffuse=(0.7, 0.1, 0.1), specular=(0.2, 0.2, 0.2), shininess=30.0)
+    assert glass.transparency == pytest.approx(0.75) and glass.ior == pytest.approx(1.45)
+    assert tinted.diffuse == (0.5, 0.5, 0.5) and tinted.transparency == pytest.approx(0.4)
+    assert mesh.n_triangles == 4 and mesh.material_ids.tolist() == [0, 1, 1, 2]
+    assert mesh.vertex_normals("flat") is None and mesh.smooth_normals.shape == mesh.vertices.shape
+
+
+def test_obj_with_missing_mtl_keeps_groups_with_default_materials(tmp_path, private_cache):
+    mesh = load_mesh_file(_write(tmp_path, "two.obj", OBJ))
+    assert mesh.n_triangles == 4 and mesh.material_ids.tolist() == [0, 1, 1, 2]
+    assert mesh.materials == [Material("glass"), Material("red"), Material("tinted")]
+    assert [w for w in mesh.warnings if "material" in w] == [
+        f"{tmp_path / 'two.obj'}: material library {tmp_path / 'two.mtl'} not found; using default materials"]
+
+
+def test_file_normals_are_kept_and_normalised(tmp_path, private_cache):
+    header = _ply(TRIANGLE, [(0, 1, 2)]).replace("property float z\n", "property float z\nproperty float nx\n"
+                                                   "property float ny\nproperty float nz\n")
+    text = header.replace("0 0 0\n", "0 0 0 0 0 2\n").replace("1 0 0\n", "1 0 0 0 0 2\n", 1)
+    text = text.replace("0 1 0\n", "0 1 0 0 0 2\n")
+    mesh = load_mesh_file(_write(tmp_path, "normals.ply", text))
+    np.testing.assert_allclose(mesh.file_normals, [[0, 0, 1]] * 3)
+    assert mesh.vertex_normals("auto") is mesh.file_normals and mesh.vertex_normals("flat") is None
+
+
+def test_relative_path_is_found_in_the_scene_directories(preset_scenes):
+    _scene_file_or_skip("kitchen")
+    scene = load_scene("kitchen/kitchen.obj", size=128)
+    assert scene.name == "kitchen" and scene.n_triangles == preset_scenes("kitchen").n_triangles
+    assert scene.camera.width == 128 and scene.vertex_normals is None  # architecture: flat
+
+
+def test_gltf_base_colour_becomes_diffuse(tmp_path, private_cache):
+    trimesh = pytest.importorskip("trimesh")
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    box.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
+        name="paint", baseColorFactor=[0.2, 0.4, 0.6, 1.0]))
+    path = tmp_path / "box.glb"
+    box.export(path)
+    mesh = load_mesh_file(path)
+    assert mesh.n_triangles == 12
+    np.testing.assert_allclose(mesh.materials[0].diffuse, (0.2, 0.4, 0.6), atol=1 / 255)
+    np.testing.assert_allclose(mesh.bounds(), [(-0.5, -1, -1.5), (0.5, 1, 1.5)])
+
+
+def test_cache_roundtrip_and_invalidation(tmp_path, private_cache):
+    mtl = _write(tmp_path, "two.mtl", MTL)
+    obj = _write(tmp_path, "two.obj", OBJ)
+    first = load_mesh_file(obj)
+    second = load_mesh_file(obj)
+    assert not first.from_cache and second.from_cache
+    assert len(list(private_cache.glob("two-*.npz"))) == 1
+    for field in ("vertices", "faces", "material_ids", "smooth_normals"):
+        assert np.array_equal(getattr(first, field), getattr(second, field))
+    assert first.materials == second.materials and first.warnings == second.warnings
+    mtl.write_text(MTL.replace("Kd 0.7 0.1 0.1", "Kd 0.1 0.7 0.1"))
+    os.utime(mtl, ns=(time.time_ns(), time.time_ns() + 10**9))
+    changed = load_mesh_file(obj)
+    assert not changed.from_cache and changed.materials[1].diffuse == (0.1, 0.7, 0.1)
+    assert load_mesh_file(obj).from_cache
+    os.utime(obj, ns=(time.time_ns(), time.time_ns() + 2 * 10**9))
+    assert not load_mesh_file(obj).from_cache
+    assert len(list(private_cache.glob("two-*.npz"))) == 1  # the entry for the old file is gone
+
+
+def test_no_cache_env(tmp_path, private_cache, monkeypatch):
+    monkeypatch.setenv("RTLAB_NO_CACHE", "1")
+    path = _write(tmp_path, "tri.ply", _ply(TRIANGLE, [(0, 1, 2)]))
+    assert not load_mesh_file(path).from_cache and not load_mesh_file(path).from_cache
+    assert not private_cache.exists()
