@@ -12,10 +12,11 @@ from pathlib import Path
 from .errors import VariantError
 from .paths import KERNEL_DIR
 
-# name -> code; the codes are the RT_* constants in rt_port.h
+# name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
+# here once its kernels exist in both languages.
 TRAVERSALS = {"stack": 0}
 INTERSECTIONS = {"moller": 0}
-NODE_MEMORY = {"global": 0, "texture": 1}
+NODE_MEMORY = {"global": 0}
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 

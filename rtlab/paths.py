@@ -13,7 +13,9 @@ import platformdirs
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 PROJECT_DIR = PACKAGE_DIR.parent
-KERNEL_DIR = PROJECT_DIR / "kernels"
+# $RTLAB_KERNEL_DIR swaps in another kernel tree: the grader compiles a submission from a copy of
+# kernels/ with the student's files laid over it.
+KERNEL_DIR = Path(os.environ.get("RTLAB_KERNEL_DIR") or PROJECT_DIR / "kernels")
 SHARED_KERNEL_DIR = KERNEL_DIR / "shared"
 LABS_DIR = PROJECT_DIR / "labs"
 

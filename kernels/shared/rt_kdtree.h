@@ -13,12 +13,14 @@
 
 RT_FN int kd_is_leaf(int2 n) { return (n.x & 3) == KD_LEAF; }
 
-/* Intersect every triangle of a leaf; keeps the nearest in *hit. */
-RT_FN void intersect_leaf(RT_SCENE_PARAMS, int2 leaf, const Ray *ray, Hit *hit)
+/* Intersect the triangles of a leaf; keeps the nearest in *hit. An any-hit query (shadow rays)
+ * stops at the first. */
+RT_FN void intersect_leaf(RT_SCENE_PARAMS, int2 leaf, const Ray *ray, Hit *hit, int any_hit)
 {
     int count = leaf.x >> 2;
     for (int i = 0; i < count; ++i) {
-        intersect_tri(RT_SCENE_ARGS, ray, load_object(leaf.y + i), hit);
+        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(leaf.y + i), hit) && any_hit)
+            return;
     }
 }
 
@@ -59,10 +61,11 @@ typedef struct {
     float tmin, tmax, t_stop;
 } KdStackEntry;
 
-/* Closest hit: single ray with a per-thread stack of far children (the paper's fastest, Table 4).
+/* Single ray with a per-thread stack of far children (the paper's fastest, Table 4). Closest hit,
+ * or with any_hit (a compile-time constant after inlining) the first hit found, for shadow rays.
  * RT_STACK_SIZE is the tree depth + 1, set by the loader, so the stack cannot overflow. */
 RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray,
-                             Hit *hit)
+                             Hit *hit, int any_hit)
 {
     float tmin, tmax;
     if (!clip_ray_box(ray, scene_min, scene_max, &tmin, &tmax))
@@ -89,10 +92,10 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
             node = first;
             n = load_node(node);
         }
-        intersect_leaf(RT_SCENE_ARGS, n, ray, hit);
+        intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
         /* Done when no pending cell starts before the hit: the stack holds every unvisited cell
          * the ray crosses */
-        if (sp == 0 || hit->t <= stack[sp - 1].t_stop)
+        if (sp == 0 || hit->t <= stack[sp - 1].t_stop || (any_hit && hit->tri >= 0))
             return;
         --sp;
         node = stack[sp].node;

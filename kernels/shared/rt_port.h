@@ -12,8 +12,17 @@
 #define RT_PORT_H
 
 /* ---- Variants: compile-time switches. rtlab/kernels.py passes -D for each; these are the defaults. */
-#define RT_ISECT_MOLLER 0          /* Moller-Trumbore 1997 (the paper's MT column, Table 3) */
+/* Codes shared with rtlab/kernels.py (TRAVERSALS, INTERSECTIONS, NODE_MEMORY). */
+#define RT_ISECT_MOLLER 0          /* Moller & Trumbore 1997 (Table 3, MT) */
+#define RT_ISECT_WALD 1            /* Wald 2004 projection test, precomputed data (Table 3) */
+#define RT_ISECT_PLUCKER 2         /* Plucker coordinates, precomputed (Table 3) */
+#define RT_ISECT_WATERTIGHT 3      /* Woop, Benthin & Wald 2013, with conservative traversal */
 #define RT_TRAVERSAL_STACK 0       /* single ray, per-thread stack (Table 4, first column) */
+#define RT_TRAVERSAL_PACKET 1      /* block-wide packet with a shared stack (Table 4) */
+#define RT_TRAVERSAL_RESTART 2     /* kd-restart, Foley & Sugerman 2005 */
+#define RT_TRAVERSAL_SHORTSTACK 3  /* short stack, Horn et al. 2007 */
+#define RT_TRAVERSAL_ROPES 4       /* ropes, Popov et al. 2007 */
+#define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 
