@@ -49,6 +49,7 @@ LEAF_TAG = 3
 # Event types of the exact sweep, in the order they are processed at one position: references
 # ending there leave the right side before planar and starting ones enter the left side.
 _EV_END, _EV_PLANAR, _EV_START = 0, 1, 2
+_WINDOW = 1    # binned SAH: bins on each side of the best boundary swept exactly
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ class KdBuildParams:
     max_leaf_size: int = 1            # a node with no more triangles than this is always a leaf
     max_depth: int = 0
     bins: int = 32                    # binned SAH for large nodes; 0: exact sweep everywhere
-    exact_below: int = 128            # nodes with at most this many references sweep exactly
+    exact_below: int = 32             # nodes with at most this many references sweep exactly
 
     def key(self) -> str:
         return (f"kd-ct{self.cost_traversal}-ci{self.cost_intersect}-eb{self.empty_bonus}"
@@ -126,17 +127,17 @@ def _triangle_boxes(vertices, faces):
 
 
 @njit(cache=True, inline="always")
-def _split_cost(node_box, axis, p, n_left, n_right, inv_area, ct, ci, eb):
-    """Havran's SAH cost of splitting node_box at p on axis (child areas over the node's area)."""
-    b = (axis + 1) % 3
-    c = (axis + 2) % 3
-    db = np.float64(node_box[3 + b]) - node_box[b]
-    dc = np.float64(node_box[3 + c]) - node_box[c]
-    cap = db * dc
-    rim = db + dc
-    area_left = 2.0 * (cap + (np.float64(p) - node_box[axis]) * rim)
-    area_right = 2.0 * (cap + (np.float64(node_box[3 + axis]) - p) * rim)
-    cost = ct + ci * (area_left * n_left + area_right * n_right) * inv_area
+def _area_terms(node_box, axis, inv_area):
+    """(k0, k1) with SA(child) / SA(node) = k0 + k1 * (child's extent along axis)."""
+    db = np.float64(node_box[3 + (axis + 1) % 3]) - node_box[(axis + 1) % 3]
+    dc = np.float64(node_box[3 + (axis + 2) % 3]) - node_box[(axis + 2) % 3]
+    return 2.0 * db * dc * inv_area, 2.0 * (db + dc) * inv_area
+
+
+@njit(cache=True, inline="always")
+def _split_cost(k0, k1, lo, hi, p, n_left, n_right, ct, ci, eb):
+    """Havran's SAH cost of a split at p of the node [lo, hi] along the axis of (k0, k1)."""
+    cost = ct + ci * ((k0 + k1 * (p - lo)) * n_left + (k0 + k1 * (hi - p)) * n_right)
     if n_left == 0 or n_right == 0:
         cost *= 1.0 - eb
     return cost
@@ -150,41 +151,44 @@ def _box_area(box):
     return 2.0 * (dx * dy + dy * dz + dz * dx)
 
 
+@njit(cache=True, inline="always")
+def _bin_of(x, lo, scale, nbins):
+    return min(max(int((x - lo) * scale), 0), nbins - 1)
+
+
 @njit(cache=True)
-def _best_split_binned(ref_box, start, n, node_box, counts, inv_area, ct, ci, eb):
-    """Binned SAH over all three axes: counts[0] bins the reference minima, counts[1] the maxima;
-    the plane between bins k-1 and k has the references whose minimum lies in bins < k on its
-    left and those whose maximum lies in bins >= k on its right."""
+def _bin_refs(ref_box, start, n, node_box, scale, counts):
+    """Min-max binning (Wald 2007): counts[0, a, k] references whose minimum on axis a falls in
+    bin k, counts[1, a, k] those whose maximum does."""
     nbins = counts.shape[2]
     counts[:] = 0
-    scale = np.zeros(3)
-    for a in range(3):
-        extent = np.float64(node_box[3 + a]) - node_box[a]
-        if extent > 0.0:
-            scale[a] = nbins / extent
     for j in range(start, start + n):
         for a in range(3):
-            lo = node_box[a]
-            b0 = min(max(int((ref_box[j, a] - lo) * scale[a]), 0), nbins - 1)
-            b1 = min(max(int((ref_box[j, 3 + a] - lo) * scale[a]), 0), nbins - 1)
-            counts[0, a, b0] += 1
-            counts[1, a, b1] += 1
-    best_cost, best_axis, best_pos = np.inf, -1, np.float32(0.0)
-    for a in range(3):
-        if scale[a] == 0.0:
+            counts[0, a, _bin_of(ref_box[j, a], node_box[a], scale[a], nbins)] += 1
+            counts[1, a, _bin_of(ref_box[j, 3 + a], node_box[a], scale[a], nbins)] += 1
+
+
+@njit(cache=True)
+def _best_bin_boundary(counts, a, n, node_box, inv_area, ct, ci, eb):
+    """Cheapest plane among the bin boundaries of axis a (-1 if none lies inside the node): the
+    plane between bins k-1 and k has the references whose minimum lies in bins < k on its left
+    and those whose maximum lies in bins >= k on its right."""
+    nbins = counts.shape[2]
+    lo, hi = node_box[a], node_box[3 + a]
+    k0, k1 = _area_terms(node_box, a, inv_area)
+    best_cost, best_k = np.inf, -1
+    n_left, n_right = 0, n
+    for k in range(1, nbins):
+        n_left += counts[0, a, k - 1]
+        n_right -= counts[1, a, k - 1]
+        p = np.float32(lo + (np.float64(hi) - lo) * k / nbins)
+        if not (lo < p < hi):
             continue
-        lo, hi = node_box[a], node_box[3 + a]
-        n_left, n_right = 0, n
-        for k in range(1, nbins):
-            n_left += counts[0, a, k - 1]
-            n_right -= counts[1, a, k - 1]
-            p = np.float32(lo + (np.float64(hi) - lo) * k / nbins)
-            if not (lo < p < hi):
-                continue
-            cost = _split_cost(node_box, a, p, n_left, n_right, inv_area, ct, ci, eb)
-            if cost < best_cost:
-                best_cost, best_axis, best_pos = cost, a, p
-    return best_axis, best_pos, best_cost
+        cost = _split_cost(k0, k1, np.float64(lo), np.float64(hi), np.float64(p), n_left, n_right,
+                           ct, ci, eb)
+        if cost < best_cost:
+            best_cost, best_k = cost, k
+    return best_k
 
 
 @njit(cache=True, inline="always")
@@ -197,53 +201,103 @@ def _event_key(bits, kind, index):
 
 
 @njit(cache=True)
-def _best_split_exact(ref_box, ref_bits, start, n, node_box, events, inv_area, ct, ci, eb):
-    """Exact SAH: sweep the sorted start/end/planar events of each axis (Wald & Havran 2006).
-    Every distinct clipped-box bound strictly inside the node is a candidate plane."""
-    best_cost, best_axis, best_pos = np.inf, -1, np.float32(0.0)
-    for a in range(3):
-        lo, hi = node_box[a], node_box[3 + a]
-        if not lo < hi:
-            continue
-        m = 0
-        for j in range(n):
-            b0, b1 = ref_bits[start + j, a], ref_bits[start + j, 3 + a]
-            if b0 == b1:
+def _sort_small(keys):
+    """In-place sort; insertion sort for the short event lists of small nodes, where numba's
+    ndarray.sort costs ~0.5 us of overhead a call."""
+    if len(keys) > 48:
+        keys.sort()
+        return
+    for i in range(1, len(keys)):
+        x = keys[i]
+        j = i - 1
+        while j >= 0 and keys[j] > x:
+            keys[j + 1] = keys[j]
+            j -= 1
+        keys[j + 1] = x
+
+
+@njit(cache=True)
+def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, inv_area, ct, ci,
+                eb):
+    """Exact SAH sweep (Wald & Havran 2006, section 4.2) over the start/end/planar events of
+    axis a in the window w_lo <= x < w_hi; every distinct event position strictly inside the
+    node is a candidate plane. References entirely before the window only enter the counts."""
+    lo, hi = node_box[a], node_box[3 + a]
+    n_left, n_right = 0, n
+    m = 0
+    for j in range(n):
+        ref = start + j
+        x0, x1 = ref_box[ref, a], ref_box[ref, 3 + a]
+        n_left += x0 < w_lo
+        n_right -= x1 < w_lo
+        b0, b1 = ref_bits[ref, a], ref_bits[ref, 3 + a]
+        if b0 == b1:
+            if w_lo <= x0 < w_hi:
                 events[m] = _event_key(b0, _EV_PLANAR, j)
                 m += 1
-            else:
-                events[m] = _event_key(b0, _EV_START, j)
-                events[m + 1] = _event_key(b1, _EV_END, j)
-                m += 2
-        ev = events[:m]
-        ev.sort()
-        n_left, n_right = 0, n
-        i = 0
-        while i < m:
-            # Count the events at this position, then price the plane there: references lying
-            # in it go to both sides
-            position = ev[i] >> 32
-            n_end = n_planar = n_start = 0
-            j = i
-            while j < m and (ev[j] >> 32) == position:
-                kind = (ev[j] >> 30) & 3
-                if kind == _EV_END:
-                    n_end += 1
-                elif kind == _EV_PLANAR:
-                    n_planar += 1
-                else:
-                    n_start += 1
-                j += 1
-            n_right -= n_end + n_planar
-            ref = start + (ev[i] & 0x3FFFFFFF)
-            p = ref_box[ref, 3 + a] if ((ev[i] >> 30) & 3) == _EV_END else ref_box[ref, a]
-            if lo < p < hi:
-                cost = _split_cost(node_box, a, p, n_left + n_planar, n_right + n_planar,
-                                   inv_area, ct, ci, eb)
-                if cost < best_cost:
-                    best_cost, best_axis, best_pos = cost, a, p
-            n_left += n_start + n_planar
-            i = j
+            continue
+        if w_lo <= x0 < w_hi:
+            events[m] = _event_key(b0, _EV_START, j)
+            m += 1
+        if w_lo <= x1 < w_hi:
+            events[m] = _event_key(b1, _EV_END, j)
+            m += 1
+    ev = events[:m]
+    _sort_small(ev)
+    k0, k1 = _area_terms(node_box, a, inv_area)
+    lo64, hi64 = np.float64(lo), np.float64(hi)
+    best_cost, best_pos = np.inf, np.float32(0.0)
+    i = 0
+    while i < m:
+        # Count the events at this position, then price the plane there: references lying
+        # in it go to both sides
+        position = ev[i] >> 32
+        n_end = n_planar = n_start = 0
+        j = i
+        while j < m and (ev[j] >> 32) == position:
+            kind = (ev[j] >> 30) & 3
+            n_end += kind == _EV_END
+            n_planar += kind == _EV_PLANAR
+            n_start += kind == _EV_START
+            j += 1
+        n_right -= n_end + n_planar
+        ref = start + (ev[i] & 0x3FFFFFFF)
+        p = ref_box[ref, 3 + a] if n_end > 0 else ref_box[ref, a]
+        if lo < p < hi:
+            cost = _split_cost(k0, k1, lo64, hi64, np.float64(p), n_left + n_planar,
+                               n_right + n_planar, ct, ci, eb)
+            if cost < best_cost:
+                best_cost, best_pos = cost, p
+        n_left += n_start + n_planar
+        i = j
+    return best_pos, best_cost
+
+
+@njit(cache=True)
+def _best_split(ref_box, ref_bits, start, n, node_box, binned, scale, counts, events, inv_area,
+                ct, ci, eb):
+    """Cheapest split (axis, position, cost) of a node over all three axes; axis -1 if none.
+    Binned: pick each axis' cheapest bin boundary, then sweep exactly the events within _WINDOW
+    bins of it, so planes still sit on clipped triangle bounds (as in the exact sweep) at a
+    fraction of its cost. Otherwise sweep every event. scale, counts, events: scratch."""
+    if binned:
+        for a in range(3):
+            extent = np.float64(node_box[3 + a]) - node_box[a]
+            scale[a] = counts.shape[2] / extent if extent > 0.0 else 0.0
+        _bin_refs(ref_box, start, n, node_box, scale, counts)
+    best_cost, best_axis, best_pos = np.inf, -1, np.float32(0.0)
+    for a in range(3):
+        if not node_box[a] < node_box[3 + a]:
+            continue
+        w_lo, w_hi = -np.inf, np.inf
+        k = _best_bin_boundary(counts, a, n, node_box, inv_area, ct, ci, eb) if binned else -1
+        if k >= 0:
+            w_lo = node_box[a] + (k - _WINDOW) / scale[a]
+            w_hi = node_box[a] + (k + _WINDOW) / scale[a]
+        p, cost = _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events,
+                              inv_area, ct, ci, eb)
+        if cost < best_cost:
+            best_cost, best_axis, best_pos = cost, a, p
     return best_axis, best_pos, best_cost
 
 
@@ -274,18 +328,16 @@ def _plan_level(ref_box, ref_bits, node_box, node_start, node_count, chunks, lea
         first, last = chunks[c], chunks[c + 1]
         events = np.empty(2 * node_count[first:last].max(), np.int64)
         counts = np.empty((2, 3, max(nbins, 1)), np.int64)
+        scale = np.empty(3)
         for i in range(first, last):
             n = node_count[i]
             area = _box_area(node_box[i])
             if n <= max_leaf or not area > 0.0:
                 continue
             s = node_start[i]
-            if nbins > 0 and n > exact_below:
-                a, p, cost = _best_split_binned(ref_box, s, n, node_box[i], counts, 1.0 / area,
-                                                ct, ci, eb)
-            else:
-                a, p, cost = _best_split_exact(ref_box, ref_bits, s, n, node_box[i], events,
-                                               1.0 / area, ct, ci, eb)
+            a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i],
+                                     nbins > 0 and n > exact_below, scale, counts, events,
+                                     1.0 / area, ct, ci, eb)
             if a >= 0 and cost < ci * n:
                 axis[i] = a
                 pos[i] = p
@@ -305,18 +357,19 @@ def _clip_to_box(vertices, faces, tri, box, poly):
         for side in range(2):
             plane = np.float64(box[3 * side + a])
             sign = 1.0 if side == 0 else -1.0       # inside: sign * (x - plane) >= 0
-            inside = 0
+            outside = 0
             for k in range(m):
-                inside += sign * (poly[src, k, a] - plane) >= 0.0
-            if inside == m:
+                outside += sign * (poly[src, k, a] - plane) < 0.0
+            if outside == 0:
                 continue
             dst, mm = 1 - src, 0
             for k in range(m):
-                k1 = (k + 1) % m
+                k1 = k + 1 if k + 1 < m else 0
                 dp = sign * (poly[src, k, a] - plane)
                 dq = sign * (poly[src, k1, a] - plane)
                 if dp >= 0.0:
-                    poly[dst, mm] = poly[src, k]
+                    for c in range(3):
+                        poly[dst, mm, c] = poly[src, k, c]
                     mm += 1
                 if (dp >= 0.0) != (dq >= 0.0):
                     # Put the crossing point exactly on the plane
@@ -363,7 +416,7 @@ def _split_straddler(vertices, faces, tri, ref_box_row, node_box, axis, p, poly,
     src, m = _clip_to_box(vertices, faces, tri, node_box, poly)
     pp = np.float64(p)
     for k in range(m):
-        k1 = (k + 1) % m
+        k1 = k + 1 if k + 1 < m else 0
         x, x1 = poly[src, k, axis], poly[src, k1, axis]
         for c in range(3):
             v = poly[src, k, c]
@@ -434,15 +487,56 @@ def _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node
                     right += 1
 
 
+@njit(cache=True)
+def _link_level(node_box, node_start, node_count, axis, pos, n_left, n_right, first_node,
+                first_object, ct, ci):
+    """Encode one level's nodes (children of its k-th split node become the next level's nodes
+    2k and 2k + 1), place the children's reference ranges and the leaves' object lists, and sum
+    the level's share of the tree's SAH cost (unnormalised)."""
+    n = node_count.shape[0]
+    n_split = 0
+    for i in range(n):
+        n_split += axis[i] >= 0
+    words = np.empty((n, 2), np.int32)
+    dst_left = np.zeros(n, np.int64)
+    dst_right = np.zeros(n, np.int64)
+    leaf_dst = np.zeros(n, np.int64)
+    next_box = np.empty((2 * n_split, 6), np.float32)
+    next_start = np.empty(2 * n_split, np.int64)
+    next_count = np.empty(2 * n_split, np.int64)
+    n_refs = n_objects = k = 0
+    cost = 0.0
+    for i in range(n):
+        area = _box_area(node_box[i])
+        a = axis[i]
+        if a < 0:
+            words[i, 0] = (node_count[i] << 2) | LEAF_TAG
+            words[i, 1] = first_object + n_objects
+            leaf_dst[i] = n_objects
+            n_objects += node_count[i]
+            cost += ci * node_count[i] * area
+            continue
+        words[i, 0] = ((first_node + n + 2 * k) << 2) | a
+        words[i, 1] = np.float32(pos[i]).view(np.int32)
+        dst_left[i] = n_refs
+        dst_right[i] = n_refs + n_left[i]
+        for side in range(2):
+            next_box[2 * k + side] = node_box[i]
+        next_box[2 * k, 3 + a] = next_box[2 * k + 1, a] = pos[i]
+        next_start[2 * k] = dst_left[i]
+        next_start[2 * k + 1] = dst_right[i]
+        next_count[2 * k] = n_left[i]
+        next_count[2 * k + 1] = n_right[i]
+        n_refs += n_left[i] + n_right[i]
+        k += 1
+        cost += ct * area
+    return (words, dst_left, dst_right, leaf_dst, next_box, next_start, next_count, n_refs,
+            n_objects, cost)
+
+
 # ---------------------------------------------------------------------------------------------
 # host side
 # ---------------------------------------------------------------------------------------------
-
-def _exclusive_cumsum(x: np.ndarray) -> np.ndarray:
-    out = np.zeros(len(x), np.int64)
-    np.cumsum(x[:-1], out=out[1:])
-    return out
-
 
 def _work_chunks(node_count: np.ndarray) -> np.ndarray:
     """Boundaries splitting a level's nodes into runs of about equal work, several per thread,
@@ -464,7 +558,7 @@ def build_kdtree(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams 
     """Build Havran's SAH kd-tree over a triangle mesh (see the module docstring).
 
     vertices: (V, 3) float32; faces: (F, 3) int32 indices into vertices.
-    progress: optional callable ``progress(level, max_depth)``, called after each tree level.
+    progress: optional ``progress(message: str)`` (rtlab's convention), told after each level.
     """
     t0 = time.perf_counter()
     vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
@@ -489,66 +583,36 @@ def build_kdtree(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams 
     weighted_cost = 0.0
     depth = 0
     while True:
-        n_level = len(node_count)
         chunks = _work_chunks(node_count)
         axis, pos, n_left, n_right = _plan_level(
             ref_box, ref_box.view(np.int32), node_box, node_start, node_count, chunks,
             depth >= max_depth, ct, ci, eb, params.max_leaf_size, params.bins, params.exact_below)
-        split = axis >= 0
-        leaf = ~split
-
-        # Encode this level's nodes; children of the k-th split node go to the next level's 2k, 2k+1
-        words = np.empty((n_level, 2), np.int32)
-        first_child = n_nodes_before + n_level + 2 * (np.cumsum(split) - 1)
-        words[split, 0] = (first_child[split] << 2) | axis[split]
-        words[split, 1] = pos[split].view(np.int32)
-        leaf_count = np.where(leaf, node_count, 0)
-        leaf_dst = _exclusive_cumsum(leaf_count)
-        words[leaf, 0] = (node_count[leaf] << 2) | LEAF_TAG
-        words[leaf, 1] = n_objects_before + leaf_dst[leaf]
+        (words, dst_left, dst_right, leaf_dst, next_box, next_start, next_count, n_refs_next,
+         n_objects, level_cost) = _link_level(node_box, node_start, node_count, axis, pos,
+                                             n_left, n_right, n_nodes_before, n_objects_before, ct, ci)
         node_levels.append(words)
-
-        areas = _node_areas(node_box)
-        weighted_cost += ct * areas[split].sum() + ci * (areas[leaf] * node_count[leaf]).sum()
-
-        dst_left = _exclusive_cumsum(n_left + n_right)
-        dst_right = dst_left + n_left
-        n_refs_next = int(n_left.sum() + n_right.sum())
+        weighted_cost += level_cost
         out_tri = np.empty(n_refs_next, np.int32)
         out_box = np.empty((n_refs_next, 6), np.float32)
-        objects = np.empty(int(leaf_count.sum()), np.int32)
+        objects = np.empty(n_objects, np.int32)
         _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
                        dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects)
         object_levels.append(objects)
-        n_nodes_before += n_level
-        n_objects_before += len(objects)
+        n_nodes_before += len(node_count)
+        n_objects_before += n_objects
         if progress is not None:
-            progress(depth, max_depth)
-        if not split.any():
+            progress(f"kd-tree level {depth} of at most {max_depth}: {len(node_count):,} nodes")
+        if len(next_count) == 0:
             break
-
-        # Next level: children boxes and reference ranges, left and right interleaved
-        parent_box, a, p = node_box[split], axis[split], pos[split]
-        rows = np.arange(len(a))
-        left_box, right_box = parent_box.copy(), parent_box.copy()
-        left_box[rows, 3 + a] = p
-        right_box[rows, a] = p
-        node_box = np.stack([left_box, right_box], axis=1).reshape(-1, 6)
-        node_start = np.stack([dst_left[split], dst_right[split]], axis=1).reshape(-1)
-        node_count = np.stack([n_left[split], n_right[split]], axis=1).reshape(-1)
+        node_box, node_start, node_count = next_box, next_start, next_count
         ref_tri, ref_box = out_tri, out_box
         depth += 1
 
     nodes = np.concatenate(node_levels)
     objects = np.concatenate(object_levels)
-    root_area = float(_node_areas(bounds.reshape(1, 6))[0])
+    root_area = _box_area(bounds.reshape(6))
     sah_cost = weighted_cost / root_area if root_area > 0 else float("nan")
     return KdTree(nodes, objects, bounds, depth, params, time.perf_counter() - t0, sah_cost)
-
-
-def _node_areas(box: np.ndarray) -> np.ndarray:
-    d = box[:, 3:].astype(np.float64) - box[:, :3]
-    return 2.0 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
 
 
 def kd_stats(tree: KdTree, n_triangles: int) -> dict:
