@@ -16,6 +16,10 @@ from rich.table import Table
 
 from .errors import RtlabError
 
+# The paper's Table 2: #triangles, #nodes, #neleaves, #links, size
+PAPER_TABLE2 = {"bunny": (69451, 379713, 120511, 2.72, "11MB"), "sponza": (66454, 292195, 124059, 2.63, "10MB"),
+                "kitchen": (103343, 362585, 146253, 2.63, "14MB"), "dragon": (871414, 1687237, 607852, 2.59, "103MB")}
+
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL.")
 console = Console()
@@ -76,13 +80,19 @@ def build(scene: str = typer.Argument("default", help="preset name, 'default' or
     tree, cached = _tree(sc)
     seconds = time.perf_counter() - t0
     s = kd_stats(tree, sc.n_triangles)
-    table = Table(title=f"kd-tree (Table 2) for {sc.name}")
-    for col in ("#triangles", "#nodes", "#neleaves", "#links", "size", "depth", "SAH cost", "build s", "source"):
-        table.add_column(col, justify="right")
-    table.add_row(f"{s['triangles']:,}", f"{s['nodes']:,}", f"{s['nonempty_leaves']:,}",
-                  f"{s['refs_per_nonempty_leaf']:.2f}", f"{s['size_bytes'] / 2**20:.1f} MB", str(s["depth"]),
-                  f"{s['sah_cost']:.2f}", f"{tree.build_seconds:.2f}",
-                  f"cache ({seconds:.2f} s)" if cached else "built")
+    paper = PAPER_TABLE2.get(sc.name.lower())
+    table = Table(title=f"kd-tree for {sc.name} (the paper's Table 2 columns)")
+    table.add_column("column")
+    table.add_column("rtlab", justify="right")
+    table.add_column("paper", justify="right")
+    ours = [f"{s['triangles']:,}", f"{s['nodes']:,}", f"{s['nonempty_leaves']:,}",
+            f"{s['refs_per_nonempty_leaf']:.2f}", f"{s['size_bytes'] / 2**20:.1f} MB"]
+    for i, (col, value) in enumerate(zip(("#triangles", "#nodes", "#neleaves", "#links", "size"), ours)):
+        table.add_row(col, value, f"{paper[i]:,}" if paper and i < 3 else (f"{paper[i]}" if paper else "-"))
+    table.add_row("depth", str(s["depth"]), "-")
+    table.add_row("SAH cost", f"{s['sah_cost']:.2f}", "-")
+    table.add_row("build time", f"{tree.build_seconds:.2f} s", "-")
+    table.add_row("this load", f"from cache, {seconds:.2f} s" if cached else f"built, {seconds:.2f} s", "-")
     console.print(table)
 
 
@@ -96,8 +106,15 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            repeats: int = typer.Option(5, help="timed launches (median reported)"),
            traversal: str = typer.Option("stack", help="kd-tree traversal variant"),
            isect: str = typer.Option("moller", help="triangle intersection test"),
-           block: str = typer.Option("32x4", help="block / work-group shape WxH")):
-    """Render a scene (primary rays, simple shading), print time and Mrays/s, write a PNG."""
+           block: str = typer.Option("32x4", help="block / work-group shape WxH"),
+           shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
+           bounces: Optional[int] = typer.Option(None, help="reflection/refraction bounces (kernel tree)"),
+           materials: str = typer.Option("auto", help="with --shadows/--bounces: file, mtl, bart, paper, "
+                                         "paper-refraction, auto (rtlab.scene.materials)"),
+           fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
+           compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels")):
+    """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
+    shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
     from .kernels import Variant
     from .rendering import render as do_render, save_png
     try:
@@ -109,6 +126,11 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     be = get_backend(backend, device)
     sc = _load_scene(scene, size)
     _tree(sc)
+    if shadows is not None or bounces is not None:
+        from .whitted import render_whitted_command
+        render_whitted_command(console, sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel,
+                               compact, repeats, check, out)
+        return
     with console.status(f"rendering {sc.name} {sc.camera.width}x{sc.camera.height}..."):
         result = do_render(sc, be, variant, repeats=repeats, warmup=1, write_hits=check)
     save_png(result.image, out)
@@ -185,6 +207,164 @@ def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help
         cmd = "rtlab bench primary " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench primary"
         with open(md, "a") as f:
             f.write(rows_markdown(rows, f"Primary rays, {size}x{size}", cmd) + "\n")
+
+
+@bench_app.command("intersect")
+def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separated presets"),
+                    backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                    device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                    isects: str = typer.Option("moller,wald,plucker,watertight", help="tests to time"),
+                    size: int = typer.Option(1024, help="rays: width = height of the camera (paper: 1024)"),
+                    triangles: int = typer.Option(1000, help="triangles in the loop (paper: the first 1000)"),
+                    repeats: int = typer.Option(5, help="timed launches; the median is reported"),
+                    render_size: int = typer.Option(1024, help="in-render effect at this size; 0: skip it"),
+                    check: bool = typer.Option(True, help="error against the float64 reference"),
+                    md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """The paper's Table 3: each triangle test on the first 1000 triangles (time, registers, bytes per
+    triangle, error), then in the renderer (Mrays/s and error)."""
+    from .backends import get_backend
+    from .benches.intersect import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS, bench_table3, table3_markdown
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    names = [i for i in isects.split(",") if i]
+    rows = []
+    for name in [s for s in scenes.split(",") if s]:
+        scene = _load_scene(name, render_size or size)
+        _tree(scene)
+        for be in bes:
+            with console.status(f"Table 3 on {scene.name}, {be.name}..."):
+                rows += bench_table3(scene, be, names, size, triangles, repeats, render_size or None, check=check)
+    table = Table(title=f"Table 3: first {triangles} triangles, {size}x{size} rays; renderer at {render_size}²")
+    for col in ("scene", "test", "backend", "loop ms", "Mtests/s", "paper ms", "nvcc regs", "paper regs",
+                "B/tri read", "B/tri extra", "loop error", "render Mrays/s", "render error"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        paper = PAPER_TABLE3_MS.get(r.scene, {}).get(r.isect)
+        table.add_row(r.scene, r.isect, r.backend, f"{r.median_ms:.2f}", f"{r.mtests:,.0f}",
+                      f"{paper}" if paper else "-", str(r.nvcc["registers"]) if r.nvcc else "-",
+                      str(PAPER_TABLE3_REGISTERS.get(r.isect, "-")), str(r.bytes_read), str(r.bytes_precomputed),
+                      r.error_text(), f"{r.render.mrays:,.1f}" if r.render else "-",
+                      r.render.error_text() if r.render else "-")
+    console.print(table)
+    if any(not be.is_gpu() for be in bes):
+        console.print("CPU device: times are not comparable with the paper's GPU figures.")
+    if md:
+        cmd = "rtlab bench intersect " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench intersect"
+        with open(md, "a") as f:
+            f.write(table3_markdown(rows, cmd) + "\n")
+
+
+@bench_app.command("robustness")
+def bench_robustness(backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                     device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                     isects: Optional[str] = typer.Option(None, help="tests (default: every one)"),
+                     traversals: Optional[str] = typer.Option(None, help="traversals (default: every one)"),
+                     families: str = typer.Option("1,2,3,4,5,6,7,8,9", help="families 1-9 of issue 4"),
+                     size: str = typer.Option("bench", help="'bench' (127² stairs, 10^5 rays) or 'test' (small)"),
+                     conservative: str = typer.Option("default", help="RT_CONSERVATIVE: default, 0, 1 or 0,1"),
+                     detail: bool = typer.Option(False, help="one row per case instead of per family"),
+                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, false hits, NaN t, crashes
+    and hangs of every triangle test x traversal against the float64 reference."""
+    from .backends import get_backend
+    from .robustness import TABLE_COLUMNS, aggregate, row_cells, rows_table, run_robustness
+    cons = [None if c == "default" else int(c) for c in conservative.split(",")]
+    fams = [int(f) for f in families.split(",") if f]
+    rows = []
+    for b in backends.split(","):
+        be = get_backend(b, device if b == "opencl" else None)
+        with console.status(f"robustness suite on {be.name}...") as status:
+            rows += run_robustness(be, isects.split(",") if isects else None,
+                                   traversals.split(",") if traversals else None, fams, size, cons,
+                                   progress=lambda m: status.update(f"{be.name}: {m}"))
+    shown = rows if detail else aggregate(rows)
+    table = Table(title=f"robustness ({size} sizes)")
+    for col in TABLE_COLUMNS:
+        table.add_column(col, justify="right")
+    for r in shown:
+        table.add_row(*row_cells(r))
+    console.print(table)
+    if md:
+        cmd = "rtlab bench robustness " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench robustness"
+        with open(md, "a") as f:
+            f.write(f"### Robustness suite\n\nCommand: `{cmd}`\n\n" + rows_table(shown) + "\n")
+
+
+@bench_app.command("shading")
+def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help="Table 5 shadow rows (presets)"),
+                  bounce_scenes: str = typer.Option("sponza,kitchen", help="Table 5 bounce rows (presets)"),
+                  bounces: str = typer.Option("1,2,3", help="bounce depths of the bounce rows"),
+                  special_bounces: int = typer.Option(3, help="depth of the specialised-vs-general rows; -1: skip"),
+                  backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                  device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                  size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                  repeats: int = typer.Option(10, help="timed frames; the median is reported"),
+                  check_size: int = typer.Option(128, help="error against the float64 reference at this size; 0: skip"),
+                  materials: str = typer.Option("paper", help="materials of the bounce rows (rtlab.scene.materials)"),
+                  md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
+    """The paper's Table 5 (shadows one-pass vs two-pass, 1-3 bounces) and specialised vs general kernels."""
+    from .backends import get_backend
+    from .benches.shading import (PAPER_OCCUPANCY, PAPER_REGISTERS, bench_bounces, bench_shadows,
+                                  bench_specialisation, table5_markdown)
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    rows = []
+    scenes = {}
+    for name in dict.fromkeys([s for s in (shadow_scenes + "," + bounce_scenes).split(",") if s]):
+        scenes[name] = _load_scene(name, size)
+        _tree(scenes[name])
+    for be in bes:
+        for name in [s for s in shadow_scenes.split(",") if s]:
+            for mode in ("one-pass", "two-pass"):
+                with console.status(f"{name} shadows {mode} on {be.name}..."):
+                    rows.append(bench_shadows(scenes[name], be, mode, size, repeats, check_size))
+        for name in [s for s in bounce_scenes.split(",") if s]:
+            for depth in [int(b) for b in bounces.split(",") if b]:
+                with console.status(f"{name} {depth} bounces on {be.name}..."):
+                    rows.append(bench_bounces(scenes[name], be, depth, size, repeats, check_size, materials=materials))
+        if special_bounces >= 0:
+            for name in scenes:
+                with console.status(f"{name} specialised vs general on {be.name}..."):
+                    rows += bench_specialisation(scenes[name], be, special_bounces, size, repeats)
+    cpu = any(not be.is_gpu() for be in bes)
+    table = Table(title=f"Table 5: shadows, {size}x{size}")
+    for col in ("scene", "shadows", "backend", "ms", "fps", "paper fps", "regs", "paper regs", "occupancy",
+                "paper occ.", "error vs float64"):
+        table.add_column(col, justify="right")
+    for r in (r for r in rows if r.table == "shadows"):
+        table.add_row(r.scene, r.mode, r.backend, f"{r.median_ms:.2f}", f"{r.fps:,.1f}", str(r.paper_fps or "-"),
+                      r.regs_text(), PAPER_REGISTERS[r.mode], r.occupancy_text(), PAPER_OCCUPANCY[r.mode], r.error_text())
+    console.print(table)
+    table = Table(title=f"Table 5: reflection/refraction kernel tree, {size}x{size}, materials {materials}")
+    for col in ("scene", "bounces", "backend", "ms", "fps", "paper fps", "compacted fps", "launches", "rays",
+                "regs", "occupancy", "error vs float64"):
+        table.add_column(col, justify="right")
+    for r in (r for r in rows if r.table == "bounces"):
+        e = r.extra
+        table.add_row(r.scene, r.mode, r.backend, f"{r.median_ms:.2f}", f"{r.fps:,.1f}", str(r.paper_fps or "-"),
+                      f"{e['compact_fps']:,.1f}" + ("" if e["same_image"] else " (image differs!)"),
+                      f"{r.launches} / {e['compact_launches']}", f"{r.rays:,} / {e['compact_rays']:,}",
+                      r.regs_text(), r.occupancy_text(), r.error_text())
+    console.print(table)
+    table = Table(title=f"scene-specialised vs general kernels, scene materials, {special_bounces} bounces, {size}x{size}")
+    for col in ("scene", "kernel", "backend", "depth", "ms", "fps", "regs", "occupancy", "same image"):
+        table.add_column(col, justify="right")
+    for r in (r for r in rows if r.table == "specialised"):
+        table.add_row(r.scene, r.mode, r.backend, str(r.extra["depth"]), f"{r.median_ms:.2f}", f"{r.fps:,.1f}",
+                      r.regs_text(), r.occupancy_text(),
+                      "yes" if r.extra["same_image"] else f"NO (max diff {r.extra['max_diff']})")
+    console.print(table)
+    console.print("regs/occupancy per kernel in launch order; errors at "
+                  f"{check_size}x{check_size}" + ("; CPU device: times are not comparable with the paper's GPU "
+                                                  "figures" if cpu else ""))
+    if md:
+        cmd = "rtlab bench shading " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench shading"
+        with open(md, "a") as f:
+            f.write(table5_markdown(rows, cmd) + "\n")
+
+
+# Course commands: rtlab lab ..., rtlab grade, rtlab inspect (rtlab/labs/cli.py)
+from .labs.cli import register as _register_course_commands  # noqa: E402
+
+_register_course_commands(app)
 
 
 def main(argv: Optional[list[str]] = None) -> int:
