@@ -52,10 +52,12 @@ def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=Non
 
 
 def scene_features(scene: Scene, stack_size: int) -> SceneFeatures:
+    from .scene.materials import shading_features
     return SceneFeatures(stack_size=stack_size,
                          smooth_normals=scene.vertex_normals is not None,
                          n_lights=max(1, len(scene.lights)),
-                         n_materials=max(1, len(scene.materials)))
+                         n_materials=max(1, len(scene.materials)),
+                         **shading_features(scene))
 
 
 def padded_bounds(bounds: np.ndarray) -> np.ndarray:
@@ -165,3 +167,7 @@ class DeviceScene:
                                                       len(self.scene.materials)))
         program.set_constant("lights", light_constants(self.scene))
         program.set_constant("materials", material_constants(self.scene))
+
+
+from .accel import tri_data as _tri_data  # noqa: E402,F401  registers TRI_DATA_BUILDERS["wald"], ["plucker"]
+from .accel import bvh as _bvh, ropes as _ropes  # noqa: E402,F401  registers ACCEL_BUILDERS["bvh"], ["ropes"]

@@ -14,11 +14,21 @@ from .paths import KERNEL_DIR
 
 # name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
 # here once its kernels exist in both languages.
-TRAVERSALS = {"stack": 0}
-INTERSECTIONS = {"moller": 0}
+TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5}
+INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
 NODE_MEMORY = {"global": 0}
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
+
+# Lab step whose entry kernels trace primary rays for a traversal: the packet needs block-wide
+# shared memory declared at kernel scope, which only 03_traversal's kernels declare.
+PRIMARY_STEPS = {"packet": "03_traversal"}
+DEFAULT_PRIMARY_STEP = "00_primary"
+
+
+def primary_step(variant: "Variant") -> str:
+    """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant."""
+    return PRIMARY_STEPS.get(variant.traversal, DEFAULT_PRIMARY_STEP)
 
 
 def lab_steps() -> list[str]:
@@ -57,8 +67,11 @@ class Variant:
     intersection: str = "moller"
     node_memory: str = "global"
     block: tuple[int, int] = DEFAULT_BLOCK
+    short_stack: int = 4          # short-stack entries (Horn et al. 2007), RT_SHORT_STACK_SIZE
 
     def __post_init__(self):
+        if not 1 <= int(self.short_stack) <= 64:
+            raise VariantError(f"short_stack must be 1..64 entries, got {self.short_stack}")
         _lookup(TRAVERSALS, self.traversal, "traversal")
         _lookup(INTERSECTIONS, self.intersection, "intersection test")
         _lookup(NODE_MEMORY, self.node_memory, "memory placement")
@@ -69,7 +82,8 @@ class Variant:
         return replace(self, **kw)
 
     def label(self) -> str:
-        return f"{self.traversal}/{self.intersection}/{self.node_memory}/{self.block[0]}x{self.block[1]}"
+        traversal = f"shortstack{self.short_stack}" if self.traversal == "shortstack" else self.traversal
+        return f"{traversal}/{self.intersection}/{self.node_memory}/{self.block[0]}x{self.block[1]}"
 
 
 @dataclass(frozen=True)
@@ -79,6 +93,17 @@ class SceneFeatures:
     smooth_normals: bool = False
     n_lights: int = 1
     n_materials: int = 1
+    # Shading features (§3.2): the defaults are the general kernel, which compiles everything in.
+    # A scene-specialised kernel leaves out what its scene cannot use; the image does not change.
+    has_lights: bool = True       # RT_LIGHTS, RT_SHADOWS: no lights, no lighting loop, no shadow rays
+    reflective: bool = True       # RT_REFLECTION: some material reflects (mirror, Fresnel or TIR)
+    transparent: bool = True      # RT_REFRACTION: some material transmits
+    max_bounces: int = 16         # RT_MAX_DEPTH cap: deepest secondary ray with weight left
+
+    def general(self) -> "SceneFeatures":
+        """The same scene without shading specialisation (every shading feature compiled in)."""
+        return replace(self, has_lights=True, reflective=True, transparent=True,
+                       max_bounces=SceneFeatures.max_bounces)
 
 
 def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[str, int]:
@@ -88,9 +113,15 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_ISECT": _lookup(INTERSECTIONS, variant.intersection, "intersection test"),
         "RT_NODE_MEM": _lookup(NODE_MEMORY, variant.node_memory, "memory placement"),
         "RT_STACK_SIZE": max(1, int(features.stack_size)),
+        "RT_SHORT_STACK_SIZE": int(variant.short_stack),
         "RT_SMOOTH_NORMALS": int(features.smooth_normals),
         "RT_MAX_LIGHTS": max(1, int(features.n_lights)),
         "RT_MAX_MATERIALS": max(1, int(features.n_materials)),
+        "RT_LIGHTS": int(features.has_lights),
+        "RT_SHADOWS": int(features.has_lights),
+        "RT_REFLECTION": int(features.reflective),
+        "RT_REFRACTION": int(features.transparent),
+        "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
     defines.update({k: int(v) for k, v in extra.items()})
     return defines

@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .backends import get_backend
-from .kernels import Variant, load_program
+from .kernels import Variant, load_program, primary_step
 from .layout import HIT_DTYPE
 from .scene.model import Scene
-from .tracing import PRIMARY_STEP, TraceResult, device_scene, unpack_hits
+from .tracing import TraceResult, device_scene, unpack_hits
 
 
 @dataclass
@@ -42,7 +42,7 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     variant = variant or Variant()
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)
-    program = load_program(backend, PRIMARY_STEP, variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))
+    program = load_program(backend, primary_step(variant), variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))
     ds.set_constants(program, camera, variant)
     n = camera.width * camera.height
     pixels = backend.empty(n * 4)

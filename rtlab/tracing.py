@@ -12,7 +12,7 @@ import numpy as np
 from .backends import get_backend
 from .device_scene import DeviceScene
 from .errors import RtlabError
-from .kernels import Variant, load_program
+from .kernels import Variant, load_program, primary_step
 from .layout import HIT_DTYPE, float4_rows
 from .scene.model import Camera, Scene
 
@@ -74,7 +74,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     if n == 0:
         empty = np.zeros(0, np.float32)
         return TraceResult(empty, np.zeros(0, np.int32), empty, empty, 0.0, backend.name, backend.device_name)
-    program = load_program(backend, PRIMARY_STEP, variant, ds.features(variant))
+    program = load_program(backend, primary_step(variant), variant, ds.features(variant))
     ds.set_constants(program, None, variant)
     o_buf = backend.to_device(float4_rows(origins, tmin))
     d_buf = backend.to_device(float4_rows(directions, tmax))

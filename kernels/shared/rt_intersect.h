@@ -1,15 +1,70 @@
-/* rt_intersect.h - ray/triangle tests (§3.1.2, Table 3) and the ray/box clip.
- * Each test updates *hit only for a hit nearer than hit->t and beyond ray->tmin, and says whether it did. */
+/* rt_intersect.h - ray/triangle tests (§3.1.2, Table 3), the ray/box clip, and the Table 3 loop.
+ *
+ *   RT_ISECT_MOLLER      Moller & Trumbore 1997: reads the three vertices (tris)
+ *   RT_ISECT_WALD        Wald 2004 projection test: reads only its precomputed TriWald (tri_data)
+ *   RT_ISECT_PLUCKER     Plucker coordinates of the edges: reads only its TriPlucker (tri_data)
+ *   RT_ISECT_WATERTIGHT  Woop, Benthin & Wald 2013: reads the vertices; with RT_CONSERVATIVE on
+ *                        (its default, rt_port.h) the box clip here and the kd split choice in
+ *                        rt_kdtree.h cannot cull what it finds
+ * The precomputed layouts are built by rtlab/accel/tri_data.py (sync with that file).
+ *
+ * Each test updates *hit only for a hit nearer than hit->t and beyond ray->tmin, and says whether
+ * it did. Edges are inclusive and triangles two-sided, as in the float64 reference. A NaN t, a
+ * zero-area triangle or a ray parallel to the plane never hits: every t test is written as
+ * !(t > tmin && t < hit->t), which NaN fails. */
 #ifndef RT_INTERSECT_H
 #define RT_INTERSECT_H
 #include "rt_memory.h"
 #include "rt_types.h"
 
+/* Double precision for the watertight test's fallback: always in CUDA, in OpenCL where the device
+ * has cl_khr_fp64 (-DRT_HAS_FP64=0 forces the float-only path). */
+#ifndef RT_HAS_FP64
+#if defined(__CUDACC__)
+#define RT_HAS_FP64 1
+#elif defined(cl_khr_fp64)
+#define RT_HAS_FP64 1
+#else
+#define RT_HAS_FP64 0
+#endif
+#endif
+#if RT_HAS_FP64 && !defined(__CUDACC__)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+/* Relative rounding bound of a plane distance (p - o) * inv_d: three roundings (subtract, reciprocal,
+ * multiply) give gamma(3) = 3u/(1-3u), u = 2^-24; comparing two such distances needs twice that
+ * (Ize 2013, "Robust BVH Ray Traversal", JCGT 2(2), eq. 7: 1 + 2 gamma(3)). We take 16u: the same
+ * bound with room for a reciprocal that is not correctly rounded (NVIDIA OpenCL's 1/x may be off
+ * by 2.5 ulp without -cl-fp32-correctly-rounded-divide-sqrt). */
+#define RT_T_PAD (16.0f * 5.9604645e-8f)
+
+/* Precomputed triangle data in tri_data, float4 rows per triangle (sync with rtlab/accel/tri_data.py). */
+#define RT_WALD_ROWS 3
+#define RT_PLUCKER_ROWS 6
+
+/* Wald's TriAccel (Wald 2004, §7.1.3), 48 bytes. k: dominant axis of the normal N; (ku, kv) the
+ * two others in cyclic order. The plane is p_k + n_u p_ku + n_v p_kv = n_d (N scaled by 1/N_k);
+ * the barycentrics of a hit (hu, hv) projected along k are u = hu*eu.x + hv*eu.y + eu.z (weight of
+ * v1) and v likewise with ev (weight of v2). Degenerate triangles are stored as NaN (never hit). */
+typedef struct {
+    float4 plane;   /* n_u, n_v, n_d, k (int bits) */
+    float4 eu, ev;  /* w unused */
+} TriWald;
+
+/* Plucker coordinates (direction, moment = a x b) of the edges v0->v1, v1->v2, v2->v0, and the
+ * plane n . p = n . v0 for t; 96 bytes (88 used). Degenerate triangles are stored as NaN. */
+typedef struct {
+    float4 d0, m0, d1, m1, d2, m2;   /* w of d0, m0, d1: n.x, n.y, n.z; w of m1: n . v0 */
+} TriPlucker;
+
 /* Moller & Trumbore, "Fast, minimum storage ray/triangle intersection", JGT 1997.
  * No epsilon on the determinant (det == 0 only rejects parallel rays and zero-area triangles):
- * an epsilon there drops grazing hits. Edges are inclusive, so a ray through a shared edge hits. */
+ * an epsilon there drops grazing hits. Edges are inclusive, so a ray through a shared edge hits
+ * unless rounding pushes u or v just outside in both triangles (not watertight). */
 RT_FN int intersect_ray_tri_moller(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
 {
+    /* BEGIN SOLUTION */
     float3 e1 = sub3(v1, v0);
     float3 e2 = sub3(v2, v0);
     float3 p = cross3(ray->d, e2);
@@ -26,7 +81,6 @@ RT_FN int intersect_ray_tri_moller(const Ray *ray, float3 v0, float3 v1, float3 
     if (v < 0.0f || u + v > 1.0f)
         return 0;
     float t = dot3(e2, q) * inv_det;
-    /* Written so that a NaN t fails the test */
     if (!(t > ray->tmin && t < hit->t))
         return 0;
     hit->t = t;
@@ -34,37 +88,212 @@ RT_FN int intersect_ray_tri_moller(const Ray *ray, float3 v0, float3 v1, float3 
     hit->v = v;
     hit->tri = tri;
     return 1;
+    /* END SOLUTION */
+}
+
+/* Wald's projection test (Wald 2004, PhD thesis, §7.1.3; the paper's "Projection [17]"): plane
+ * distance first, then the hit point projected along the normal's dominant axis k, barycentrics
+ * from two precomputed edge equations. Scalar work, no vertex reads; the price is precision far
+ * from the origin, where n_d and the edge offsets are large and cancel. */
+RT_FN int intersect_ray_tri_wald(const Ray *ray, const TriWald *acc, int tri, Hit *hit)
+{
+    /* BEGIN SOLUTION */
+    int k = rt_as_int(acc->plane.w);
+    int ku = k == 2 ? 0 : k + 1;
+    int kv = ku == 2 ? 0 : ku + 1;
+    float dk = get3(ray->d, k), du = get3(ray->d, ku), dv = get3(ray->d, kv);
+    float ok = get3(ray->o, k), ou = get3(ray->o, ku), ov = get3(ray->o, kv);
+    /* A ray parallel to the plane gives inf or NaN here; the t test rejects both */
+    float inv_nd = 1.0f / (dk + acc->plane.x * du + acc->plane.y * dv);
+    float t = (acc->plane.z - ok - acc->plane.x * ou - acc->plane.y * ov) * inv_nd;
+    if (!(t > ray->tmin && t < hit->t))
+        return 0;
+    float hu = ou + t * du;
+    float hv = ov + t * dv;
+    float u = hu * acc->eu.x + hv * acc->eu.y + acc->eu.z;
+    if (u < 0.0f)
+        return 0;
+    float v = hu * acc->ev.x + hv * acc->ev.y + acc->ev.z;
+    if (v < 0.0f || u + v > 1.0f)
+        return 0;
+    hit->t = t;
+    hit->u = u;
+    hit->v = v;
+    hit->tri = tri;
+    return 1;
+    /* END SOLUTION */
+}
+
+/* Plucker test (Erickson 1997, Shoemake 1998; the paper's [3, 14, 1]): the ray L = (d, o x d)
+ * passes through the triangle when its permuted inner products with the three edges,
+ * side(L, E) = d . m_E + d_E . (o x d), share a sign (zero included: inclusive edges). The two
+ * triangles of a shared edge store exactly negated coordinates, so they disagree on no ray; but
+ * o x d and the moments grow with the distance from the origin and cancel in each sum.
+ * Each side product is the barycentric weight of the opposite vertex times a common factor. */
+RT_FN int intersect_ray_tri_plucker(const Ray *ray, const TriPlucker *acc, int tri, Hit *hit)
+{
+    /* BEGIN SOLUTION */
+    float3 m = cross3(ray->o, ray->d);
+    float s0 = dot3(ray->d, xyz(acc->m0)) + dot3(xyz(acc->d0), m);   /* weight of v2 */
+    float s1 = dot3(ray->d, xyz(acc->m1)) + dot3(xyz(acc->d1), m);   /* weight of v0 */
+    float s2 = dot3(ray->d, xyz(acc->m2)) + dot3(xyz(acc->d2), m);   /* weight of v1 */
+    if ((s0 < 0.0f || s1 < 0.0f || s2 < 0.0f) && (s0 > 0.0f || s1 > 0.0f || s2 > 0.0f))
+        return 0;
+    float sum = s0 + s1 + s2;
+    if (sum == 0.0f)
+        return 0;
+    float3 n = f3(acc->d0.w, acc->m0.w, acc->d1.w);
+    float t = (acc->m1.w - dot3(n, ray->o)) / dot3(n, ray->d);
+    if (!(t > ray->tmin && t < hit->t))
+        return 0;
+    float inv_sum = 1.0f / sum;
+    hit->t = t;
+    hit->u = s2 * inv_sum;
+    hit->v = s0 * inv_sum;
+    hit->tri = tri;
+    return 1;
+    /* END SOLUTION */
+}
+
+/* a*b - c*d with each product rounded on its own. A fused multiply-add would round the two
+ * products differently, and the edge function of a shared edge would no longer be exactly the
+ * negation of its neighbour's (Woop et al. 2013 assume no contraction). */
+RT_FN float diff_of_products_rn(float a, float b, float c, float d)
+{
+#if defined(__CUDACC__)
+    return __fsub_rn(__fmul_rn(a, b), __fmul_rn(c, d));
+#else
+#pragma OPENCL FP_CONTRACT OFF
+    return a * b - c * d;
+#endif
+}
+
+/* Components of a in the order (kx, ky, kz). */
+RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx), get3(a, ky), get3(a, kz)); }
+
+/* Woop, Benthin & Wald, "Watertight Ray/Triangle Intersection", JCGT 2(1), 2013. Vertices are
+ * moved to the ray origin and sheared so that the ray runs along +z; the 2D edge functions U, V, W
+ * of the sheared vertices then depend on the edge's two corners only, so the triangles of a shared
+ * edge compute exactly negated values and no ray slips between them. Where an edge function is
+ * exactly zero it is recomputed in double (float products are exact there). The shear is
+ * recomputed per triangle (Ray has no spare fields); the compiler hoists it out of Table 3's loop. */
+RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
+{
+    /* BEGIN SOLUTION */
+    /* Permute so that kz is the direction's largest component; swap kx, ky to keep the winding */
+    float ax = rt_abs(ray->d.x), ay = rt_abs(ray->d.y), az = rt_abs(ray->d.z);
+    int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1;
+    int ky = kx == 2 ? 0 : kx + 1;
+    if (get3(ray->d, kz) < 0.0f) {
+        int swap = kx;
+        kx = ky;
+        ky = swap;
+    }
+    float sz = get3(ray->inv_d, kz);
+    float sx = get3(ray->d, kx) * sz;
+    float sy = get3(ray->d, ky) * sz;
+    /* Translate to the origin, then shear: each vertex is transformed on its own */
+    float3 a = permute3(sub3(v0, ray->o), kx, ky, kz);
+    float3 b = permute3(sub3(v1, ray->o), kx, ky, kz);
+    float3 c = permute3(sub3(v2, ray->o), kx, ky, kz);
+    float ax2 = a.x - sx * a.z, ay2 = a.y - sy * a.z;
+    float bx2 = b.x - sx * b.z, by2 = b.y - sy * b.z;
+    float cx2 = c.x - sx * c.z, cy2 = c.y - sy * c.z;
+    float u = diff_of_products_rn(cx2, by2, cy2, bx2);
+    float v = diff_of_products_rn(ax2, cy2, ay2, cx2);
+    float w = diff_of_products_rn(bx2, ay2, by2, ax2);
+#if RT_HAS_FP64
+    /* Fall back to double at an edge: the float products may have rounded to equal values */
+    if (u == 0.0f || v == 0.0f || w == 0.0f) {
+        u = (float)((double)cx2 * (double)by2 - (double)cy2 * (double)bx2);
+        v = (float)((double)ax2 * (double)cy2 - (double)ay2 * (double)cx2);
+        w = (float)((double)bx2 * (double)ay2 - (double)by2 * (double)ax2);
+    }
+#endif
+    /* Without double a zero stays zero: an inclusive edge, so both neighbours hit (conservative) */
+    if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f))
+        return 0;
+    float det = u + v + w;
+    if (det == 0.0f)
+        return 0;
+    float tz = u * (sz * a.z) + v * (sz * b.z) + w * (sz * c.z);
+    float inv_det = 1.0f / det;
+    float t = tz * inv_det;
+    if (!(t > ray->tmin && t < hit->t))
+        return 0;
+    hit->t = t;
+    hit->u = v * inv_det;
+    hit->v = w * inv_det;
+    hit->tri = tri;
+    return 1;
+    /* END SOLUTION */
 }
 
 /* The test chosen by RT_ISECT, on triangle tri of the scene (the paper's Table 3 variable). */
 RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
 {
+#if RT_ISECT == RT_ISECT_WALD
+    TriWald acc;
+    acc.plane = load_tri_data(RT_WALD_ROWS * tri);
+    acc.eu = load_tri_data(RT_WALD_ROWS * tri + 1);
+    acc.ev = load_tri_data(RT_WALD_ROWS * tri + 2);
+    return intersect_ray_tri_wald(ray, &acc, tri, hit);
+#elif RT_ISECT == RT_ISECT_PLUCKER
+    TriPlucker acc;
+    acc.d0 = load_tri_data(RT_PLUCKER_ROWS * tri);
+    acc.m0 = load_tri_data(RT_PLUCKER_ROWS * tri + 1);
+    acc.d1 = load_tri_data(RT_PLUCKER_ROWS * tri + 2);
+    acc.m1 = load_tri_data(RT_PLUCKER_ROWS * tri + 3);
+    acc.d2 = load_tri_data(RT_PLUCKER_ROWS * tri + 4);
+    acc.m2 = load_tri_data(RT_PLUCKER_ROWS * tri + 5);
+    return intersect_ray_tri_plucker(ray, &acc, tri, hit);
+#else
     float3 v0 = xyz(load_tri_vertex(tri, 0));
     float3 v1 = xyz(load_tri_vertex(tri, 1));
     float3 v2 = xyz(load_tri_vertex(tri, 2));
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+    return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
+#else
     return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
+#endif
+#endif
 }
 
-/* Clip the ray to an axis-aligned box: slab test (Kay & Kajiya). A zero direction component gives
- * +-inf slab distances; fmin/fmax drop the NaN of 0 * inf (origin exactly on a slab plane), which
- * keeps such rays instead of losing them. Rays with NaN/Inf origin or direction, or a zero
- * direction, never enter. */
+/* The paper's Table 3 kernel body: "the first 1000 triangles of the scene in a for-loop", no
+ * acceleration structure; closest hit over triangles [0, n_tris). */
+RT_FN void intersect_first_tris(RT_SCENE_PARAMS, const Ray *ray, int n_tris, Hit *hit)
+{
+    for (int tri = 0; tri < n_tris; ++tri)
+        intersect_tri(RT_SCENE_ARGS, ray, tri, hit);
+}
+
+/* One slab of the box test: near and far plane by the sign of the direction, distances in the
+ * (b - o) * inv_d form. inv_far is inv_d, or with RT_CONSERVATIVE inv_d padded by RT_T_PAD (Ize 2013),
+ * so rounding cannot cull a box the exact ray enters. A zero direction component gives +-inf; the
+ * NaN of 0 * inf (origin exactly on the plane) is dropped by fmin/fmax, which keeps the ray. */
+RT_FN void clip_slab(float lo, float hi, float o, float inv_d, float inv_far, float *t0, float *t1)
+{
+    int forward = inv_d >= 0.0f;
+    *t0 = rt_max(*t0, ((forward ? lo : hi) - o) * inv_d);
+    *t1 = rt_min(*t1, ((forward ? hi : lo) - o) * inv_far);
+}
+
+/* Clip the ray to an axis-aligned box: slab test (Kay & Kajiya). Rays with NaN/Inf origin or
+ * direction, or a zero direction, never enter. */
 RT_FN int clip_ray_box(const Ray *ray, float4 bmin, float4 bmax, float *t_enter, float *t_exit)
 {
     if (!(finite3(ray->o) && finite3(ray->d) && dot3(ray->d, ray->d) > 0.0f))
         return 0;
+#if RT_CONSERVATIVE
+    float3 inv_far = mul3(ray->inv_d, 1.0f + RT_T_PAD);
+#else
+    float3 inv_far = ray->inv_d;
+#endif
     float t0 = ray->tmin, t1 = ray->tmax;
-    float a0 = (bmin.x - ray->o.x) * ray->inv_d.x, a1 = (bmax.x - ray->o.x) * ray->inv_d.x;
-    t0 = rt_max(t0, rt_min(a0, a1));
-    t1 = rt_min(t1, rt_max(a0, a1));
-    a0 = (bmin.y - ray->o.y) * ray->inv_d.y;
-    a1 = (bmax.y - ray->o.y) * ray->inv_d.y;
-    t0 = rt_max(t0, rt_min(a0, a1));
-    t1 = rt_min(t1, rt_max(a0, a1));
-    a0 = (bmin.z - ray->o.z) * ray->inv_d.z;
-    a1 = (bmax.z - ray->o.z) * ray->inv_d.z;
-    t0 = rt_max(t0, rt_min(a0, a1));
-    t1 = rt_min(t1, rt_max(a0, a1));
+    clip_slab(bmin.x, bmax.x, ray->o.x, ray->inv_d.x, inv_far.x, &t0, &t1);
+    clip_slab(bmin.y, bmax.y, ray->o.y, ray->inv_d.y, inv_far.y, &t0, &t1);
+    clip_slab(bmin.z, bmax.z, ray->o.z, ray->inv_d.z, inv_far.z, &t0, &t1);
     *t_enter = t0;
     *t_exit = t1;
     return t0 <= t1;

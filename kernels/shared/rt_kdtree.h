@@ -26,7 +26,11 @@ RT_FN void intersect_leaf(RT_SCENE_PARAMS, int2 leaf, const Ray *ray, Hit *hit, 
 
 /* Choose the children of interior node n for the ray segment [tmin, tmax] (front-to-back order
  * as in pbrt). Returns 1: visit *first only; 2: *first on [tmin, *t_split], then *second on
- * [*t_split, tmax]; 3: the ray lies in the split plane, both children on [tmin, tmax]. */
+ * [*t_split, tmax]; 3: the ray lies in the split plane, both children on [tmin, tmax].
+ * With RT_CONSERVATIVE a child is skipped only when t_split is beyond the segment by more than the
+ * rounding bound RT_T_PAD of the plane distances compared (Ize 2013 applied to kd split planes):
+ * within the bound both children are visited, so rounding cannot cull a cell the exact ray crosses.
+ * The sign of ts is exact (the subtraction is zero only when o == split), so ts <= 0 needs no pad. */
 RT_FN int kd_children(int2 n, const Ray *ray, float tmin, float tmax, int *first, int *second,
                       float *t_split)
 {
@@ -44,9 +48,14 @@ RT_FN int kd_children(int2 n, const Ray *ray, float tmin, float tmax, int *first
         return 3;
     }
     *t_split = ts;
-    if (ts > tmax || ts <= 0.0f)
+#if RT_CONSERVATIVE
+    float ts_lo = ts * (1.0f - RT_T_PAD), ts_hi = ts * (1.0f + RT_T_PAD);
+#else
+    float ts_lo = ts, ts_hi = ts;
+#endif
+    if (ts_lo > tmax || ts <= 0.0f)
         return 1;
-    if (ts < tmin) {
+    if (ts_hi < tmin) {
         *first = *second;
         return 1;
     }
@@ -67,6 +76,7 @@ typedef struct {
 RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray,
                              Hit *hit, int any_hit)
 {
+    /* BEGIN SOLUTION */
     float tmin, tmax;
     if (!clip_ray_box(ray, scene_min, scene_max, &tmin, &tmax))
         return;
@@ -102,6 +112,7 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
         tmin = stack[sp].tmin;
         tmax = stack[sp].tmax;
     }
+    /* END SOLUTION */
 }
 
 #endif /* RT_KDTREE_H */

@@ -29,6 +29,9 @@
 #ifndef RT_ISECT
 #define RT_ISECT RT_ISECT_MOLLER
 #endif
+#ifndef RT_CONSERVATIVE            /* 1: box and kd split tests padded by their rounding bound (Ize 2013) */
+#define RT_CONSERVATIVE (RT_ISECT == RT_ISECT_WATERTIGHT)
+#endif
 #ifndef RT_TRAVERSAL
 #define RT_TRAVERSAL RT_TRAVERSAL_STACK
 #endif

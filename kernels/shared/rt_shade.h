@@ -1,5 +1,7 @@
-/* rt_shade.h - simple shading: the paper's Table 4 setting (primary rays, Lambert, no shadows).
- * The float64 reference (rtlab/reference/shading.py) implements the same formula. */
+/* rt_shade.h - simple shading: the paper's Table 4 setting (primary rays, Lambert, no shadows),
+ * and the surface record every shading model starts from (rt_whitted.h builds on it).
+ * The float64 references (rtlab/reference/shading.py, rtlab/reference/whitted.py) implement the
+ * same formulas. */
 #ifndef RT_SHADE_H
 #define RT_SHADE_H
 #include "rt_memory.h"
@@ -50,6 +52,48 @@ RT_FN unsigned int pack_rgba8(float3 c)
     unsigned int g = (unsigned int)(rt_min(rt_max(c.y, 0.0f), 1.0f) * 255.0f + 0.5f);
     unsigned int b = (unsigned int)(rt_min(rt_max(c.z, 0.0f), 1.0f) * 255.0f + 0.5f);
     return r | (g << 8) | (b << 16) | (255u << 24);
+}
+
+/* What shading and secondary rays need to know about a hit. Normals face the incoming ray. */
+typedef struct {
+    float3 p;        /* hit point from the barycentrics (see hit_position) */
+    float3 ng;       /* unit geometric normal: the side rays leave from (spawn offsets, shadows) */
+    float3 ns;       /* unit shading normal: interpolated vertex normals, or ng when flat */
+    int front;       /* the ray hit the counter-clockwise side: it enters a transparent object */
+    int material;
+} Surface;
+
+/* The hit point as b0 v0 + b1 v1 + b2 v2: its error is a few ulps of the vertex coordinates,
+ * whereas o + t d carries the error of t times the ray length (Wachter & Binder, Ray Tracing
+ * Gems ch. 6, sec. 6.2.1). Far from the origin only the former keeps spawn offsets small. */
+RT_FN float3 hit_position(float3 v0, float3 v1, float3 v2, const Hit *hit)
+{
+    float3 p = mul3(v0, 1.0f - hit->u - hit->v);
+    p = madd3(p, v1, hit->u);
+    return madd3(p, v2, hit->v);
+}
+
+/* Surface record of a hit (hit->tri >= 0) of a ray with direction d. */
+RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
+{
+    Surface s;
+    float3 v0 = xyz(load_tri_vertex(hit->tri, 0));
+    float3 v1 = xyz(load_tri_vertex(hit->tri, 1));
+    float3 v2 = xyz(load_tri_vertex(hit->tri, 2));
+    s.p = hit_position(v0, v1, v2, hit);
+    float3 ng = normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
+    s.front = dot3(ng, d) < 0.0f;
+    s.ng = s.front ? ng : mul3(ng, -1.0f);
+#if RT_SMOOTH_NORMALS
+    float3 ns = mul3(xyz(load_tri_normal(hit->tri, 0)), 1.0f - hit->u - hit->v);
+    ns = madd3(ns, xyz(load_tri_normal(hit->tri, 1)), hit->u);
+    ns = normalize3(madd3(ns, xyz(load_tri_normal(hit->tri, 2)), hit->v));
+    s.ns = dot3(ns, d) > 0.0f ? mul3(ns, -1.0f) : ns;
+#else
+    s.ns = s.ng;
+#endif
+    s.material = load_tri_material(hit->tri);
+    return s;
 }
 
 #endif /* RT_SHADE_H */

@@ -1,22 +1,50 @@
 /* rt_traverse.h - the traversal chosen by RT_TRAVERSAL (the paper's Table 4 variable), behind two
  * names, so ray-generation and shading code reads the same for every variant:
  *   trace_closest  closest hit (primary, reflection and refraction rays)
- *   trace_any      any hit within (tmin, tmax): occlusion (shadow rays, §3.2.1) */
+ *   trace_any      any hit within (tmin, tmax): occlusion (shadow rays, §3.2.1)
+ * The packet traversal needs the block-wide shared stack that only its entry kernels declare (lab
+ * step 03_traversal, which calls traverse_kd_packet itself); a single-ray kernel built for it is a
+ * compile error rather than a silent fallback to another traversal. */
 #ifndef RT_TRAVERSE_H
 #define RT_TRAVERSE_H
 #include "rt_kdtree.h"
 
+#if RT_TRAVERSAL == RT_TRAVERSAL_STACK
+#define RT_TRAVERSE_RAY traverse_kd_stack
+#elif RT_TRAVERSAL == RT_TRAVERSAL_RESTART
+#include "rt_kd_restart.h"
+#define RT_TRAVERSE_RAY traverse_kd_restart
+#elif RT_TRAVERSAL == RT_TRAVERSAL_SHORTSTACK
+#include "rt_kd_shortstack.h"
+#define RT_TRAVERSE_RAY traverse_kd_shortstack
+#elif RT_TRAVERSAL == RT_TRAVERSAL_ROPES
+#include "rt_kd_ropes.h"
+#define RT_TRAVERSE_RAY traverse_kd_ropes
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH
+#include "rt_bvh.h"
+#define RT_TRAVERSE_RAY traverse_bvh
+#elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+#ifndef RT_PACKET_KERNELS
+#error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.kernels.primary_step)"
+#endif
+#include "rt_packet.h"
+/* 03_traversal's packet kernels call traverse_kd_packet; the single-ray names stay defined, unused */
+#define RT_TRAVERSE_RAY traverse_kd_stack
+#else
+#error "unknown RT_TRAVERSAL (codes atop rt_port.h)"
+#endif
+
 /* Closest hit of the ray within the scene box; *hit starts as a miss at ray->tmax. */
 RT_FN void trace_closest(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit)
 {
-    traverse_kd_stack(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, 0);
+    RT_TRAVERSE_RAY(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, 0);
 }
 
 /* Whether anything blocks the ray within (ray->tmin, ray->tmax). */
 RT_FN int trace_any(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray)
 {
     Hit hit = make_miss(ray->tmax);
-    traverse_kd_stack(RT_SCENE_ARGS, scene_min, scene_max, ray, &hit, 1);
+    RT_TRAVERSE_RAY(RT_SCENE_ARGS, scene_min, scene_max, ray, &hit, 1);
     return hit.tri >= 0;
 }
 

@@ -126,7 +126,7 @@ def _triangle_boxes(vertices, faces):
     return boxes, usable
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _area_terms(node_box, axis, inv_area):
     """(k0, k1) with SA(child) / SA(node) = k0 + k1 * (child's extent along axis)."""
     db = np.float64(node_box[3 + (axis + 1) % 3]) - node_box[(axis + 1) % 3]
@@ -134,7 +134,7 @@ def _area_terms(node_box, axis, inv_area):
     return 2.0 * db * dc * inv_area, 2.0 * (db + dc) * inv_area
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _split_cost(k0, k1, lo, hi, p, n_left, n_right, ct, ci, eb):
     """Havran's SAH cost of a split at p of the node [lo, hi] along the axis of (k0, k1)."""
     cost = ct + ci * ((k0 + k1 * (p - lo)) * n_left + (k0 + k1 * (hi - p)) * n_right)
@@ -151,7 +151,7 @@ def _box_area(box):
     return 2.0 * (dx * dy + dy * dz + dz * dx)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bin_of(x, lo, scale, nbins):
     return min(max(int((x - lo) * scale), 0), nbins - 1)
 
@@ -191,7 +191,7 @@ def _best_bin_boundary(counts, a, n, node_box, inv_area, ct, ci, eb):
     return best_k
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _event_key(bits, kind, index):
     """Sort key of one sweep event: float position (its bits made monotonic), then kind, then
     the reference (so the plane's float can be read back from the winning event)."""
@@ -313,35 +313,42 @@ def _count_sides(ref_box, start, n, axis, p):
     return n_left, n_right
 
 
+@njit(cache=True)
+def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, first, last, ct, ci, eb,
+                max_leaf, nbins, exact_below, axis, pos, n_left, n_right):
+    """Choose the split of nodes first..last-1 (axis -1: make a leaf) and count its children's
+    references."""
+    events = np.empty(2 * node_count[first:last].max(), np.int64)
+    counts = np.empty((2, 3, max(nbins, 1)), np.int64)
+    scale = np.empty(3)
+    for i in range(first, last):
+        n = node_count[i]
+        area = _box_area(node_box[i])
+        if n <= max_leaf or not area > 0.0:
+            continue
+        s = node_start[i]
+        a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], nbins > 0 and n > exact_below,
+                                 scale, counts, events, 1.0 / area, ct, ci, eb)
+        if a >= 0 and cost < ci * n:
+            axis[i] = a
+            pos[i] = p
+            n_left[i], n_right[i] = _count_sides(ref_box, s, n, a, p)
+
+
 @njit(parallel=True, cache=True)
 def _plan_level(ref_box, ref_bits, node_box, node_start, node_count, chunks, leaves_only,
                 ct, ci, eb, max_leaf, nbins, exact_below):
-    """Choose each node's split (axis -1: make a leaf) and count its children's references."""
+    """Splits of a level's nodes (axis -1: leaf) and their children's reference counts."""
     n_nodes = node_box.shape[0]
     axis = np.full(n_nodes, -1, np.int32)
     pos = np.zeros(n_nodes, np.float32)
     n_left = np.zeros(n_nodes, np.int64)
     n_right = np.zeros(n_nodes, np.int64)
-    if leaves_only:
-        return axis, pos, n_left, n_right
-    for c in prange(chunks.shape[0] - 1):
-        first, last = chunks[c], chunks[c + 1]
-        events = np.empty(2 * node_count[first:last].max(), np.int64)
-        counts = np.empty((2, 3, max(nbins, 1)), np.int64)
-        scale = np.empty(3)
-        for i in range(first, last):
-            n = node_count[i]
-            area = _box_area(node_box[i])
-            if n <= max_leaf or not area > 0.0:
-                continue
-            s = node_start[i]
-            a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i],
-                                     nbins > 0 and n > exact_below, scale, counts, events,
-                                     1.0 / area, ct, ci, eb)
-            if a >= 0 and cost < ci * n:
-                axis[i] = a
-                pos[i] = p
-                n_left[i], n_right[i] = _count_sides(ref_box, s, n, a, p)
+    if not leaves_only:
+        for c in prange(chunks.shape[0] - 1):
+            _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, chunks[c],
+                        chunks[c + 1], ct, ci, eb, max_leaf, nbins, exact_below, axis, pos,
+                        n_left, n_right)
     return axis, pos, n_left, n_right
 
 
@@ -384,7 +391,7 @@ def _clip_to_box(vertices, faces, tri, box, poly):
     return src, m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _down_f32(x):
     y = np.float32(x)
     if y > x:
@@ -392,7 +399,7 @@ def _down_f32(x):
     return y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _up_f32(x):
     y = np.float32(x)
     if y < x:
@@ -451,40 +458,48 @@ def _split_straddler(vertices, faces, tri, ref_box_row, node_box, axis, p, poly,
             out_right[3 + c] = min(out_right[3 + c], _up_f32(hi_r[c])) + np.float32(0.0)
 
 
+@njit(cache=True)
+def _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
+                   dst_left, dst_right, leaf_dst, first, last, out_tri, out_box, objects):
+    """Write the references of split nodes first..last-1 to their children (clipping
+    straddlers) and the triangle lists of its leaves to ``objects``."""
+    poly = np.empty((2, 16, 3))
+    ext = np.empty((4, 3))
+    for i in range(first, last):
+        s, n = node_start[i], node_count[i]
+        a = axis[i]
+        if a < 0:
+            objects[leaf_dst[i]:leaf_dst[i] + n] = ref_tri[s:s + n]
+            continue
+        p = pos[i]
+        left, right = dst_left[i], dst_right[i]
+        for j in range(s, s + n):
+            lo, hi = ref_box[j, a], ref_box[j, 3 + a]
+            if lo < p < hi:
+                _split_straddler(vertices, faces, ref_tri[j], ref_box[j], node_box[i], a, p,
+                                 poly, ext, out_box[left], out_box[right])
+                out_tri[left] = out_tri[right] = ref_tri[j]
+                left += 1
+                right += 1
+                continue
+            planar = lo == p and hi == p
+            if lo < p or planar:
+                out_tri[left] = ref_tri[j]
+                out_box[left] = ref_box[j]
+                left += 1
+            if hi > p or planar:
+                out_tri[right] = ref_tri[j]
+                out_box[right] = ref_box[j]
+                right += 1
+
+
 @njit(parallel=True, cache=True)
 def _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
                    dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects):
-    """Write each split node's references to its children (clipping straddlers) and each leaf's
-    triangle list to ``objects``."""
     for c in prange(chunks.shape[0] - 1):
-        poly = np.empty((2, 16, 3))
-        ext = np.empty((4, 3))
-        for i in range(chunks[c], chunks[c + 1]):
-            s, n = node_start[i], node_count[i]
-            a = axis[i]
-            if a < 0:
-                objects[leaf_dst[i]:leaf_dst[i] + n] = ref_tri[s:s + n]
-                continue
-            p = pos[i]
-            left, right = dst_left[i], dst_right[i]
-            for j in range(s, s + n):
-                lo, hi = ref_box[j, a], ref_box[j, 3 + a]
-                if lo < p < hi:
-                    _split_straddler(vertices, faces, ref_tri[j], ref_box[j], node_box[i], a, p,
-                                     poly, ext, out_box[left], out_box[right])
-                    out_tri[left] = out_tri[right] = ref_tri[j]
-                    left += 1
-                    right += 1
-                    continue
-                planar = lo == p and hi == p
-                if lo < p or planar:
-                    out_tri[left] = ref_tri[j]
-                    out_box[left] = ref_box[j]
-                    left += 1
-                if hi > p or planar:
-                    out_tri[right] = ref_tri[j]
-                    out_box[right] = ref_box[j]
-                    right += 1
+        _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis,
+                       pos, dst_left, dst_right, leaf_dst, chunks[c], chunks[c + 1], out_tri,
+                       out_box, objects)
 
 
 @njit(cache=True)

@@ -1,0 +1,221 @@
+"""The paper's Table 5 (shadows one-pass vs two-pass; 1-, 2-, 3-bounce reflection/refraction) and
+the scene-specialised vs general kernels, on the current device.
+
+Every row gives frames per second of the whole frame (the device time of all its launches, median
+of ``repeats`` frames), the registers and occupancy of each kernel (the CUDA backend's own report;
+elsewhere nvcc's offline report for sm_90 when nvcc is installed), and the error against the float64
+Whitted reference (rtlab.reference.whitted) at a smaller size (the reference is numpy). The paper's
+figures (GeForce 8800 GTS, 1024x1024) stand beside them.
+
+Shadow rows render the scene's materials as loaded ("file": the paper's Table 5 shadow columns
+have no secondary rays). Bounce rows use the Fig. 6 material overrides ("paper", see
+rtlab.scene.materials) with one-pass shadows in every tree node, measured without and with the
+compaction of live rays between levels (beyond the paper), to show whether compaction pays.
+Specialised-vs-general rows render the scenes' own materials ("file"): with the Fig. 6 overrides
+every scene has lights, mirrors and glass, and the two kernels would be one.
+"""
+from __future__ import annotations
+
+import datetime
+import platform
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..kernels import Variant, kernel_source
+from ..scene.materials import apply_materials
+from ..scene.model import Scene
+from ..whitted import WhittedResult, render_whitted
+
+# Table 5 of the paper: fps at 1024x1024 on a GeForce 8800 GTS
+PAPER_SHADOW_FPS = {"bunny": {"one-pass": 16.6, "two-pass": 18.4},
+                    "sponza": {"one-pass": 21.0, "two-pass": 23.9},
+                    "kitchen": {"one-pass": 18.1, "two-pass": 20.1}}
+PAPER_BOUNCE_FPS = {"sponza": {1: 11.3, 2: 7.2, 3: 5.0}, "kitchen": {1: 9.1, 2: 5.9, 3: 3.9}}
+PAPER_REGISTERS = {"one-pass": "22", "two-pass": "19/18"}
+PAPER_OCCUPANCY = {"one-pass": "33%", "two-pass": "50%"}
+
+_NVCC_CACHE: dict = {}
+_SCENES: dict = {}
+
+
+def _with_materials(scene: Scene, materials: str) -> Scene:
+    """The scene with a material preset, made once: every Scene object is uploaded on its own."""
+    key = (id(scene), materials)
+    if key not in _SCENES or _SCENES[key][0] is not scene:
+        _SCENES[key] = (scene, apply_materials(scene, materials))
+    return _SCENES[key][1]
+
+
+def kernel_resources(backend, result: WhittedResult) -> dict[str, dict]:
+    """kernel -> {registers, occupancy, local_bytes, source} for the kernels a render launched."""
+    threads = int(np.prod(result.variant.block))
+    out = {}
+    if backend.name != "cuda":
+        from ..nvcc import nvcc_available, nvcc_resources
+        if nvcc_available():
+            key = (result.step, tuple(sorted(result.defines.items())), threads)
+            if key not in _NVCC_CACHE:
+                _NVCC_CACHE[key] = nvcc_resources(kernel_source(result.step, "cuda"), result.defines,
+                                                  block_threads=threads)
+            for name in result.resources:
+                r = _NVCC_CACHE[key].get(name)
+                if r is not None:
+                    out[name] = {"registers": r.registers, "occupancy": r.occupancy, "local_bytes": r.local_bytes,
+                                 "source": "nvcc sm_90"}
+            return out
+    for name, r in result.resources.items():
+        out[name] = {"registers": r.get("registers"), "occupancy": r.get("occupancy"),
+                     "local_bytes": r.get("local_bytes"), "source": backend.name}
+    return out
+
+
+@dataclass
+class ShadingRow:
+    table: str                       # "shadows", "bounces" or "specialised"
+    scene: str
+    mode: str                        # one-pass / two-pass / "3 bounces" / "general" ...
+    backend: str
+    device: str
+    size: int
+    median_ms: float
+    fps: float
+    paper_fps: float | None
+    kernels: dict                    # kernel -> resources (kernel_resources)
+    launches: int
+    rays: int
+    error: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    def regs_text(self) -> str:
+        return "/".join(str(k["registers"]) if k.get("registers") is not None else "-"
+                        for name, k in self.kernels.items() if name != "pack_frame")
+
+    def occupancy_text(self) -> str:
+        return "/".join(f"{k['occupancy']:.0%}" if k.get("occupancy") is not None else "-"
+                        for name, k in self.kernels.items() if name != "pack_frame")
+
+    def error_text(self) -> str:
+        e = self.error
+        if not e:
+            return "-"
+        psnr = "inf" if np.isinf(e["psnr"]) else f"{e['psnr']:.1f} dB"
+        return (f"PSNR {psnr}, tree {e['tree_pixels']}/{e['pixels']} px, same tree max "
+                f"{e['color_max_same_tree']}/255 p99 {e['color_p99_same_tree']:.0f}/255")
+
+
+def _check(scene: Scene, backend, variant, check_size: int, **kw) -> dict:
+    """Error of a render at ``check_size`` against the float64 Whitted reference."""
+    if not check_size:
+        return {}
+    from ..reference.whitted import reference_whitted, whitted_error
+    result = render_whitted(scene, backend, variant, size=check_size, write_hits=True, **kw)
+    ref = reference_whitted(scene, scene.camera.with_size(check_size), bounces=result.depth,
+                            shadows=kw.get("shadows", "one-pass") != "none", fresnel=kw.get("fresnel", "schlick"))
+    tree = result.tree if result.tree is not None else {"P": result.hits.tri}
+    err = whitted_error(result.image, tree, ref).as_dict()
+    err["size"] = check_size
+    return err
+
+
+def _row(table, scene, mode, backend, result: WhittedResult, paper, error) -> ShadingRow:
+    return ShadingRow(table, scene.name, mode, backend.name, backend.device_name, result.image.shape[1],
+                      result.median_ms, result.fps, paper,
+                      kernel_resources(backend, result), len(result.launches), result.rays_launched(), error)
+
+
+def bench_shadows(scene: Scene, backend, mode: str, size: int, repeats: int = 10, check_size: int = 128,
+                  variant: Variant | None = None, materials: str = "file") -> ShadingRow:
+    """Table 5, shadow columns: one-pass or two-pass shadows, no secondary rays."""
+    variant = variant or Variant()
+    scene = _with_materials(scene, materials)
+    result = render_whitted(scene, backend, variant, size=size, shadows=mode, repeats=repeats, warmup=2)
+    error = _check(scene, backend, variant, check_size, shadows=mode)
+    return _row("shadows", scene, mode, backend, result, PAPER_SHADOW_FPS.get(scene.name, {}).get(mode), error)
+
+
+def bench_bounces(scene: Scene, backend, bounces: int, size: int, repeats: int = 10, check_size: int = 128,
+                  variant: Variant | None = None, materials: str = "paper", shadows: str = "one-pass") -> ShadingRow:
+    """Table 5, bounce columns: the kernel tree at ``bounces``, without and with compaction."""
+    variant = variant or Variant()
+    scene = _with_materials(scene, materials)
+    plain = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
+                           warmup=2)
+    compact = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, compact=True,
+                             repeats=repeats, warmup=2)
+    error = _check(scene, backend, variant, check_size, shadows=shadows, bounces=bounces)
+    row = _row("bounces", scene, f"{bounces} bounce{'s' if bounces > 1 else ''}", backend, plain,
+               PAPER_BOUNCE_FPS.get(scene.name, {}).get(bounces), error)
+    row.extra.update(compact_ms=compact.median_ms, compact_fps=compact.fps, compact_launches=len(compact.launches),
+                     compact_rays=compact.rays_launched(), same_image=bool(np.array_equal(plain.image, compact.image)),
+                     depth=plain.depth)
+    return row
+
+
+def bench_specialisation(scene: Scene, backend, bounces: int, size: int, repeats: int = 10,
+                         variant: Variant | None = None, materials: str = "file",
+                         shadows: str = "one-pass") -> list[ShadingRow]:
+    """The scene-specialised kernel and the general one: registers, time, and whether the images agree."""
+    variant = variant or Variant()
+    scene = _with_materials(scene, materials)
+    rows = []
+    results = {}
+    for specialise in (True, False):
+        result = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces,
+                                repeats=repeats, warmup=2, specialise=specialise)
+        results[specialise] = result
+        row = _row("specialised", scene, "specialised" if specialise else "general", backend, result, None, {})
+        row.extra.update(depth=result.depth, defines={k: result.defines[k] for k in
+                                                      ("RT_LIGHTS", "RT_SHADOWS", "RT_REFLECTION", "RT_REFRACTION",
+                                                       "RT_MAX_DEPTH")})
+        rows.append(row)
+    same = np.array_equal(results[True].image, results[False].image)
+    diff = int(np.abs(results[True].image.astype(int) - results[False].image).max())
+    for row in rows:
+        row.extra.update(same_image=bool(same), max_diff=diff)
+    return rows
+
+
+def _mark(same) -> str:
+    return "same" if same else "DIFFERENT"
+
+
+def table5_markdown(rows: list[ShadingRow], command: str) -> str:
+    """Markdown for docs/benchmarks.md: command, devices, date, then the three tables."""
+    date = datetime.date.today().isoformat()
+    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
+    out = ["### Table 5: shadows and secondary rays", "", f"Command: `{command}`  ",
+           f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", ""]
+    shadows = [r for r in rows if r.table == "shadows"]
+    if shadows:
+        out += ["| scene | shadows | size | ms | fps | paper fps | regs | paper regs | occupancy | paper occ. | error |",
+                "|---|---|---:|---:|---:|---:|---|---:|---|---:|---|"]
+        for r in shadows:
+            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
+                       f"{r.paper_fps or '-'} | {r.regs_text()} | {PAPER_REGISTERS[r.mode]} | {r.occupancy_text()} | "
+                       f"{PAPER_OCCUPANCY[r.mode]} | {r.error_text()} |")
+        out.append("")
+    bounces = [r for r in rows if r.table == "bounces"]
+    if bounces:
+        out += ["| scene | bounces | size | ms | fps | paper fps | compacted fps | launches (compacted) | "
+                "rays (compacted) | regs | occupancy | error |",
+                "|---|---|---:|---:|---:|---:|---:|---|---|---|---|---|"]
+        for r in bounces:
+            e = r.extra
+            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | {r.paper_fps or '-'} | "
+                       f"{e['compact_fps']:,.1f} | {r.launches} ({e['compact_launches']}) | "
+                       f"{r.rays:,} ({e['compact_rays']:,}) | {r.regs_text()} | {r.occupancy_text()} | {r.error_text()} |")
+        out.append("")
+    spec = [r for r in rows if r.table == "specialised"]
+    if spec:
+        out += ["| scene | kernel | size | depth | ms | fps | regs | occupancy | defines | image |",
+                "|---|---|---:|---:|---:|---:|---|---|---|---|"]
+        for r in spec:
+            d = r.extra["defines"]
+            flags = " ".join(f"{k[3:].lower()}={v}" for k, v in d.items())
+            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.extra['depth']} | {r.median_ms:.3f} | {r.fps:,.1f} | "
+                       f"{r.regs_text()} | {r.occupancy_text()} | {flags} | {_mark(r.extra['same_image'])} |")
+        out.append("")
+    out.append("Registers and occupancy per kernel in launch order (shadows: render_shadows, or "
+               "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction).")
+    return "\n".join(out) + "\n"

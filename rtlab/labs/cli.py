@@ -1,0 +1,133 @@
+"""Course commands, registered on the main ``rtlab`` app by rtlab/cli.py:
+
+    rtlab lab list | template STEP [--out DIR]
+    rtlab grade STEP SUBMISSION_DIR [--format gradescope|json|table] [--backend B] [--out results.json]
+    rtlab grade --bundle STEP [--out DIR]
+    rtlab inspect SCENE [--depth D] [--pixel X Y] [--screenshot out.png]
+
+Imports are lazy: registering costs nothing until a command runs.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional, Tuple
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+console = Console()
+lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write their templates.")
+
+
+@lab_app.command("list")
+def lab_list():
+    """Lab steps with a grading config: tests, points, visibility."""
+    from rich.table import Table
+    from .config import lab_names, load_config
+    table = Table(title="rtlab lab steps")
+    for col in ("step", "title", "files (functions)", "tests", "points"):
+        table.add_column(col)
+    for step in lab_names():
+        c = load_config(step)
+        files = "\n".join(f"{f.path} ({', '.join(f.functions)})" for f in c.files)
+        tests = "\n".join(f"{t.name} [{t.kind}]" + ("" if t.visibility == "visible" else f" ({t.visibility})")
+                          for t in c.tests)
+        table.add_row(step, escape(c.title), escape(files), escape(tests), f"{c.max_score:g}")
+    console.print(table)
+
+
+@lab_app.command("template")
+def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary"),
+                 out: Optional[Path] = typer.Option(None, help="folder to write (default labs/STEP/template)")):
+    """Write the step's template: the reference files with the student's regions stubbed."""
+    from .template import write_template
+    for p in write_template(step, out):
+        console.print(f"wrote {p}")
+
+
+def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g. 00_primary"),
+                  submission: Optional[Path] = typer.Argument(None, help="folder with the student's files"),
+                  bundle: bool = typer.Option(False, "--bundle", help="write a Gradescope autograder for STEP instead"),
+                  fmt: str = typer.Option("table", "--format", help="gradescope, json or table"),
+                  backend: str = typer.Option("opencl", help="opencl (PoCL by default) or cuda"),
+                  device: Optional[str] = typer.Option(None, help="device name substring or index"),
+                  out: Optional[Path] = typer.Option(None, help="results file (bundle: the folder to write)"),
+                  tests: Optional[str] = typer.Option(None, help="comma-separated test names (default: all)"),
+                  jobs: Optional[int] = typer.Option(None, help="tests run at once (default: CPU cores, at most 4)"),
+                  keep: bool = typer.Option(False, help="keep the work folder (trees, logs) for debugging")):
+    """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
+    from ..errors import RtlabError
+    from .results import FORMATS, report_table, write_report
+    if bundle:
+        if step is None:
+            raise RtlabError("--bundle needs the lab step: rtlab grade --bundle 00_primary")
+        from .bundle import write_bundle
+        zpath = write_bundle(step, out)
+        console.print(f"wrote {zpath.parent}/ (setup.sh, run_autograder, rtlab, scenes) and {zpath}")
+        return
+    if step is None or submission is None:
+        raise RtlabError("usage: rtlab grade STEP SUBMISSION_DIR (or rtlab grade --bundle STEP)")
+    if fmt not in FORMATS:
+        raise RtlabError(f"--format must be one of {', '.join(FORMATS)}, got '{fmt}'")
+    from .grader import grade, grading_failure_report
+    quiet = fmt != "table" and out is None     # JSON goes to stdout: keep it clean
+    status = console if not quiet else Console(stderr=True)
+
+    def progress(t):
+        status.print(f"  {t.name}: {t.score:g} / {t.max_score:g} ({t.status}, {t.seconds:.1f} s)")
+
+    try:
+        report = grade(step, submission, backend=backend, device=device,
+                       tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,
+                       progress=progress)
+    except Exception as e:  # the grader always writes results, even when it cannot grade
+        report = grading_failure_report(step, submission, backend, e)
+        if out is not None:
+            write_report(report, out, "json" if fmt == "json" else "gradescope")
+        if isinstance(e, RtlabError):
+            raise
+        raise RtlabError(f"grading failed: {type(e).__name__}: {e}") from e
+    if out is not None:
+        write_report(report, out, "json" if fmt == "json" else "gradescope")
+    if quiet:
+        from .results import full_dict, gradescope_dict
+        data = full_dict(report) if fmt == "json" else gradescope_dict(report)
+        sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
+        return
+    console.print(report_table(report))
+    for note in report.notes:
+        console.print(f"note: {escape(note)}")
+    if out is not None:
+        console.print(f"wrote {out}")
+
+
+def inspect_command(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
+                    depth: int = typer.Option(6, help="kd-tree cells down to this depth"),
+                    pixel: Optional[Tuple[int, int]] = typer.Option(None, help="X Y: show this pixel's ray tree"),
+                    size: int = typer.Option(128, help="image size the pixel refers to (width = height)"),
+                    screenshot: Optional[Path] = typer.Option(None, help="write a PNG instead of opening a window"),
+                    backend: Optional[str] = typer.Option(None, help="backend that traces the pixel's rays"),
+                    window: str = typer.Option("1024x768", help="window / screenshot size WxH")):
+    """Show the scene in pyvista: mesh, kd-tree cells, camera frustum, a pixel's rays and visited leaves."""
+    from ..errors import RtlabError
+    from ..inspect import inspect_scene
+    try:
+        w, h = (int(v) for v in window.lower().split("x"))
+    except ValueError:
+        raise RtlabError(f"--window must look like 1024x768, got '{window}'") from None
+    view = inspect_scene(scene, depth=depth, pixel=pixel, size=size, screenshot=screenshot, backend=backend,
+                         window_size=(w, h))
+    for line in view.summary():
+        console.print(escape(line))
+    if screenshot:
+        console.print(f"wrote {screenshot}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the course commands to the main app."""
+    app.add_typer(lab_app, name="lab")
+    app.command("grade")(grade_command)
+    app.command("inspect")(inspect_command)

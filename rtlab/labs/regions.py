@@ -1,0 +1,145 @@
+"""Student regions in the kernel sources: the lines between ``/* BEGIN SOLUTION */`` and
+``/* END SOLUTION */`` inside a function body (signature and doc comment stay outside).
+
+Templates are the reference with each region of a lab's functions replaced by a stub that compiles
+and returns a miss (or zero), so there is one source of truth. The stub comes from the function's
+return type (:data:`STUBS`); a region may name its own with a ``/* STUB: ... */`` line right after
+BEGIN SOLUTION. The markers stay in the template: students write between them.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from ..errors import RtlabError
+
+
+class LabError(RtlabError):
+    """A lab step, its grading config, a template or a submission is malformed."""
+
+
+BEGIN_RE = re.compile(r"^([ \t]*)/\*\s*BEGIN SOLUTION\s*\*/[ \t]*$", re.M)
+END_RE = re.compile(r"^[ \t]*/\*\s*END SOLUTION\s*\*/[ \t]*$", re.M)
+STUB_RE = re.compile(r"^[ \t]*/\*\s*STUB:\s*(.*?)\s*\*/[ \t]*$")
+# A function definition starts at the beginning of a line with a qualifier, the return type, the name
+SIGNATURE_RE = re.compile(
+    r"^(?:RT_FN|RT_KERNEL|__kernel|extern\s+\"C\"\s+__global__|__global__|static\s+inline|static)\s+"
+    r"(?P<ret>[A-Za-z_][\w \t\*]*?)\s*\b(?P<name>[A-Za-z_]\w*)\s*\(", re.M)
+TODO_MARK = "TODO (lab "
+
+# What a stubbed function returns: a miss, zero, an empty ray (tmax = 0: every pixel misses).
+STUBS = {
+    "void": "return;",
+    "int": "return 0;",
+    "unsigned int": "return 0u;",
+    "uint": "return 0u;",
+    "float": "return 0.0f;",
+    "float3": "return f3(0.0f, 0.0f, 0.0f);",
+    "float4": "return f4(0.0f, 0.0f, 0.0f, 0.0f);",
+    "Ray": "return make_ray(f3(0.0f, 0.0f, 0.0f), f3(0.0f, 0.0f, 1.0f), 0.0f, 0.0f);",
+    "Hit": "return make_miss(0.0f);",
+}
+
+
+@dataclass
+class Region:
+    function: str
+    return_type: str
+    begin: int          # character offset of the BEGIN line's start
+    end: int            # character offset just past the END line (its newline excluded)
+    body_start: int     # just past the BEGIN line's newline
+    body_end: int       # start of the END line
+    indent: str
+    line: int           # 1-based line of the BEGIN marker
+    stub: str | None    # a /* STUB: ... */ given in the region
+
+    def body(self, text: str) -> str:
+        return text[self.body_start:self.body_end]
+
+
+def find_regions(text: str, where: str = "<source>") -> list[Region]:
+    """Every marked region of a source, with the function it sits in."""
+    regions = []
+    ends = [m for m in END_RE.finditer(text)]
+    begins = [m for m in BEGIN_RE.finditer(text)]
+    if len(begins) != len(ends):
+        raise LabError(f"{where}: {len(begins)} BEGIN SOLUTION but {len(ends)} END SOLUTION markers")
+    for b, e in zip(begins, ends):
+        if e.start() < b.end():
+            raise LabError(f"{where}:{text.count(chr(10), 0, e.start()) + 1}: END SOLUTION before its BEGIN")
+        sigs = list(SIGNATURE_RE.finditer(text, 0, b.start()))
+        line = text.count("\n", 0, b.start()) + 1
+        if not sigs:
+            raise LabError(f"{where}:{line}: BEGIN SOLUTION outside a function")
+        sig = sigs[-1]
+        ret = " ".join(sig.group("ret").split())
+        body_start = b.end() + 1
+        first = text[body_start:text.find("\n", body_start)]
+        stub_match = STUB_RE.match(first)
+        regions.append(Region(function=sig.group("name"), return_type=ret, begin=b.start(), end=e.end(),
+                              body_start=body_start, body_end=e.start(), indent=b.group(1), line=line,
+                              stub=stub_match.group(1) if stub_match else None))
+    return regions
+
+
+def stub_for(region: Region, where: str) -> str:
+    if region.stub:
+        return region.stub
+    ret = region.return_type.replace("static", "").replace("inline", "").replace("__device__", "")
+    ret = " ".join(ret.replace("__forceinline__", "").split())
+    if ret in STUBS:
+        return STUBS[ret]
+    raise LabError(f"{where}:{region.line}: no stub for {region.function} returning '{region.return_type}'; "
+                   f"add a line /* STUB: return ...; */ right after BEGIN SOLUTION")
+
+
+def todo_line(step: str, function: str) -> str:
+    return f"/* {TODO_MARK}{step}): write {function} here; labs/{step}/README.md says what it must do. */"
+
+
+def strip_regions(text: str, functions: list[str], step: str, where: str = "<source>") -> str:
+    """``text`` with the regions of ``functions`` replaced by TODO + stub (markers kept)."""
+    regions = find_regions(text, where)
+    found = {r.function for r in regions}
+    missing = [f for f in functions if f not in found]
+    if missing:
+        raise LabError(f"{where}: no BEGIN SOLUTION region in {', '.join(missing)} "
+                       f"(regions found in: {', '.join(sorted(found)) or 'none'})")
+    out, pos = [], 0
+    for r in regions:
+        if r.function not in functions:
+            continue
+        out.append(text[pos:r.body_start])
+        stub = stub_for(r, where)
+        out.append(f"{r.indent}{todo_line(step, r.function)}\n")
+        if r.stub:
+            out.append(f"{r.indent}/* STUB: {r.stub} */\n")
+        out.append(f"{r.indent}{stub}\n")
+        pos = r.body_end
+    out.append(text[pos:])
+    return "".join(out)
+
+
+def stubbed_functions(text: str) -> list[str]:
+    """Functions whose region still holds the template's TODO stub."""
+    try:
+        regions = find_regions(text)
+    except LabError:
+        return []
+    return [r.function for r in regions if TODO_MARK in r.body(text)]
+
+
+def splice_regions(reference: str, student: str, where: str = "<source>") -> str:
+    """The reference with each region's body taken from the same function's region in ``student``
+    (regions the student file lacks keep the reference body). Used to keep stored test
+    submissions current when the code around the regions changes."""
+    theirs = {r.function: r.body(student) for r in find_regions(student, where)}
+    out, pos = [], 0
+    for r in find_regions(reference, where):
+        if r.function not in theirs:
+            continue
+        out.append(reference[pos:r.body_start])
+        out.append(theirs[r.function])
+        pos = r.body_end
+    out.append(reference[pos:])
+    return "".join(out)

@@ -1,0 +1,141 @@
+"""The stiff/extreme-case suite (issue 4, rtlab.robustness) at its small "test" size: every
+triangle test x every traversal in rtlab.kernels.TRAVERSALS on every family, against the float64
+reference. The watertight test with the conservative traversal must reach the issue's goals (0
+where the goal is 0); the other tests' leak and error rates are bounded at about twice what was
+measured on PoCL, so that a regression fails while the lesson (they leak) stays visible.
+The full sizes (127² stairs, 10^5 rays) run in `rtlab bench robustness`."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rtlab import kernels
+from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness
+
+FAMILIES = sorted(FAMILY_NAMES)
+TRAVERSALS = list(kernels.TRAVERSALS)
+
+# Traversals that still let rays through with the watertight test and RT_CONSERVATIVE on, as of
+# 2026-11-22 on PoCL: ropes (rt_kd_ropes.h) leaks on families 1 and 2 (e.g. family 2's first case,
+# ray 15, through a vertex of the exact plane), with or without RT_CONSERVATIVE, where the stack,
+# packet, kd-restart, short-stack and BVH traversals leak none. The fix belongs in the traversal;
+# strict: the test fails as soon as ropes is fixed, so that this entry is removed.
+CORNER_LEAKING = {"ropes"}
+
+# Leak rates (leaks / rays, worst case and traversal of a family) measured on PoCL 3.1 on
+# 2026-11-22: family 1 Möller 0.165, Wald 0.035, Plücker 0.010; family 2 Möller 0.117, Wald 0.048,
+# Plücker 0.002. Bounded at about twice that (rounding differs on devices with fused multiply-add).
+LEAK_RATE_BOUND = {(1, "moller"): 0.33, (1, "wald"): 0.07, (1, "plucker"): 0.02,
+                   (2, "moller"): 0.24, (2, "wald"): 0.10, (2, "plucker"): 0.01}
+# Mismatches (beyond ties) and false hits of the other tests: none measured on PoCL in families
+# 3-9; a small allowance for devices that contract into fused multiply-adds.
+OTHER_RATE_BOUND = 0.005
+
+_rows_cache: dict = {}
+
+
+def family_rows(backend, family: int):
+    """Rows of one family for every test and traversal (run once per backend and family; family 8
+    in a child process, so a crash or hang is counted, not fatal)."""
+    key = (id(backend), family)
+    if key not in _rows_cache:
+        _rows_cache[key] = run_robustness(backend, families=[family], size="test", timeout_s=300)
+    return _rows_cache[key]
+
+
+def _describe(r) -> str:
+    return (f"family {r.family} '{r.case}' {r.isect}/{r.traversal} (RT_CONSERVATIVE={r.conservative}): "
+            f"{r.rays} rays, leaks {r.leaks}, misses {r.misses}, mismatches {r.mismatches}, ties {r.ties}, "
+            f"false hits {r.false_hits}, NaN t {r.nan_t}, failure '{r.failure}', first bad rays {r.first_bad}")
+
+
+def _goal_marks(family, traversal):
+    if family in GOALS["leaks"] and traversal in CORNER_LEAKING:
+        return [pytest.mark.xfail(strict=True, reason=f"{traversal} leaks at cell boundaries (see CORNER_LEAKING)")]
+    return []
+
+
+@pytest.mark.parametrize("family,traversal", [pytest.param(f, t, marks=_goal_marks(f, t), id=f"{f}-{FAMILY_NAMES[f]}-{t}")
+                                              for f in FAMILIES for t in TRAVERSALS])
+def test_watertight_conservative_meets_goals(backend, family, traversal):
+    """0 leaks/misses (1-2), 0 mismatches beyond ties (3-5, 9), 0 false hits and NaN t (6, 8),
+    no crash or hang (8), for the watertight test with RT_CONSERVATIVE on."""
+    rows = [r for r in family_rows(backend, family) if r.isect == "watertight" and r.traversal == traversal]
+    assert rows and all(r.conservative == 1 for r in rows)
+    bad = [_describe(r) + f" -> {r.goal_violations()}" for r in rows if r.goal_violations()]
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("family,traversal", [pytest.param(f, t, id=f"{f}-{FAMILY_NAMES[f]}-{t}")
+                                              for f in FAMILIES for t in TRAVERSALS])
+def test_other_tests_stay_within_measured_rates(backend, family, traversal):
+    """Möller–Trumbore, Wald and Plücker: leak rates bounded (families 1-2), mismatches and false
+    hits rare elsewhere; no NaN t, no crash, no hang, and no hit for a NaN/Inf ray, for any test."""
+    rows = [r for r in family_rows(backend, family) if r.isect != "watertight" and r.traversal == traversal]
+    assert rows
+    for r in rows:
+        print(_describe(r))
+        assert not r.failure and r.nan_t == 0, _describe(r)
+        if family == 8:
+            assert r.false_hits == 0 and r.mismatches == 0, _describe(r)
+        bound = LEAK_RATE_BOUND.get((family, r.isect))
+        if bound is not None:
+            assert r.leaks <= bound * r.rays, _describe(r)
+        elif family not in GOALS["leaks"]:
+            assert r.mismatches <= OTHER_RATE_BOUND * r.rays, _describe(r)
+            assert r.false_hits <= OTHER_RATE_BOUND * r.rays, _describe(r)
+
+
+def test_leaks_are_the_lesson(backend):
+    """The suite must be able to fail: on the far-away sphere and the jittered plane, Möller–Trumbore
+    with the stack traversal lets rays through where the watertight test lets none."""
+    rows = family_rows(backend, 1) + family_rows(backend, 2)
+    leaks = {isect: sum(r.leaks for r in rows if r.isect == isect and r.traversal == "stack")
+             for isect in ("moller", "watertight")}
+    assert leaks["moller"] > 0 and leaks["watertight"] == 0, leaks
+
+
+# ---- the generators themselves --------------------------------------------------------------
+def test_every_family_has_cases_the_reference_agrees_with():
+    """Rays that must hit (closed sphere, interior of the plane) do in float64; bad rays miss;
+    the stairs rays all hit something; the scenes far away really are far away."""
+    for family in FAMILIES:
+        cases = family_cases(family, "test")
+        assert cases, f"family {family} has no case"
+        for case in cases:
+            ref = case.reference()
+            assert ref.tri.shape == (case.n_rays,)
+            if case.must_hit is not None:
+                assert ref.tri[case.must_hit].min() >= 0, case.label
+            if case.bad is not None:
+                assert np.all(ref.tri[case.bad] < 0), case.label
+            if family in (4, 5):
+                assert np.all(ref.tri >= 0), case.label
+    sphere = family_cases(1, "test")[0]
+    assert np.abs(sphere.scene.vertices).max() > 1e5
+    offsets = [np.abs(c.scene.vertices).min() for c in family_cases(5, "test")]
+    assert max(offsets) >= 1e4 - 1
+
+
+def test_stairs_grid_puts_rays_in_riser_planes():
+    """With 127² rays (the benchmark), every sixth column lies exactly in a riser's plane x = i."""
+    from rtlab.robustness import STAIR_STEPS, stairs_rays
+    o, _ = stairs_rays(127)
+    xs = np.unique(o[:, 0].astype(np.float32))
+    on_risers = np.intersect1d(xs, np.arange(STAIR_STEPS, dtype=np.float32))
+    assert len(on_risers) == STAIR_STEPS
+
+
+def test_bench_robustness_command(backend, tmp_path):
+    """`rtlab bench robustness` prints the table; here one family, two tests, the stack traversal."""
+    from typer.testing import CliRunner
+    from rtlab.cli import app
+    md = tmp_path / "robust.md"
+    args = ["bench", "robustness", "--backends", backend.name, "--size", "test", "--families", "4",
+            "--isects", "moller,watertight", "--traversals", "stack", "--md", str(md)]
+    if backend.name == "opencl":
+        args += ["--device", backend.device_name]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    text = md.read_text()
+    assert "| 4 | stairs | moller | stack |" in text and "| 4 | stairs | watertight | stack | 1 |" in text

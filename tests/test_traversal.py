@@ -1,0 +1,436 @@
+"""Traversal variants of the paper's Table 4 (lab step 03) and the BVH, on every available backend.
+
+Every variant must find the hits of the stack traversal and of the float64 reference: triangle ids
+exact apart from reported ties, t within 1e-5 of the reference. Against the stack traversal (the
+same triangle test) a variant may only differ in which of two triangles at the same t it reports:
+hit or miss is the same, t equal to rounding. Cases: camera and random rays on BUNNY, SPONZA,
+KITCHEN; rays lying in split planes; a deliberately deep tree with every short-stack size; any-hit
+against closest-hit. Host invariants of ropes and the BVH are checked against boxes recomputed here.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rtlab
+import rtlab.tracing as tracing
+from rtlab.accel.bvh import MAX_LEAF, build_bvh, decode_leaf
+from rtlab.accel.kdtree import KdBuildParams, build_kdtree
+from rtlab.accel.ropes import build_ropes
+from rtlab.device_scene import DeviceScene, padded_bounds, scene_kdtree
+from rtlab.kernels import SceneFeatures, TRAVERSALS, Variant, build_defines, kernel_source, primary_step
+from rtlab.layout import float4_rows
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.rendering import render
+from rtlab.scene.model import Camera, Material, Scene
+from rtlab.tracing import camera_rays, trace
+
+from .conftest import require_scene_file
+
+# t against the float64 reference (as tests/test_primary.py) and against the stack traversal: the
+# same float32 test, but each kernel may contract multiply-adds differently, which grazing hits
+# amplify; a missed cell shows as a far larger difference (another surface behind)
+T_REL_TOL = 1e-5
+VARIANTS = ["packet", "restart", "shortstack", "ropes", "bvh"]
+SCENES = {"bunny": "bunny.ply", "sponza": "sponza/sponza.obj", "kitchen": "kitchen/kitchen.obj"}
+SIZE = 48
+
+
+# ------------------------------------------------------------------------------------------------
+# helpers
+# ------------------------------------------------------------------------------------------------
+def _preset(name):
+    require_scene_file(SCENES[name])
+    return rtlab.load_scene(name, size=SIZE)
+
+
+def _scene_from_mesh(name, vertices, faces):
+    return Scene(name, np.asarray(vertices, np.float32), np.asarray(faces, np.int32),
+                 np.zeros(len(faces), np.int32), [Material()], Camera((2.0, 2.0, 2.0), (0.0, 0.0, 0.0)),
+                 source="procedural")
+
+
+def _use_tree(scene, backend, tree):
+    """Trace ``scene`` on ``backend`` with this kd-tree instead of the cached default build."""
+    tracing._device_scenes[(id(scene), id(backend))] = (scene, DeviceScene.upload(backend, scene, tree))
+
+
+def _random_rays(scene, n, seed):
+    """Rays from random points inside and around the scene box, any direction."""
+    rng = np.random.default_rng(seed)
+    lo, hi = scene.bounds().astype(np.float64)
+    ext = hi - lo
+    o = rng.uniform(lo - 0.5 * ext, hi + 0.5 * ext, size=(n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d.astype(np.float32)
+
+
+def _split_plane_rays(scene, tree, n, seed):
+    """Rays lying in split planes of the kd-tree (zero direction component along the split axis,
+    origin on the plane), a third of them along a coordinate axis."""
+    rng = np.random.default_rng(seed)
+    inner = np.flatnonzero(~tree.is_leaf())
+    pick = rng.choice(inner, n)
+    axis, pos = tree.split_axis()[pick], tree.split_pos()[pick]
+    lo, hi = scene.bounds()
+    rows = np.arange(n)
+    o = rng.uniform(lo, hi, size=(n, 3)).astype(np.float32)
+    o[rows, axis] = pos
+    d = rng.normal(size=(n, 3))
+    d[rows, axis] = 0.0
+    along = rng.uniform(size=n) < 0.3
+    other = (axis + 1 + rng.integers(0, 2, n)) % 3
+    d[along, other[along]] = 0.0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d.astype(np.float32)
+    d[rows, axis] = 0.0
+    return o, d
+
+
+class Case:
+    """Rays of one scene with their float64 reference and stack-traversal hits."""
+
+    def __init__(self, scene, o, d, backend, t_tol=T_REL_TOL):
+        self.scene, self.o, self.d, self.t_tol = scene, o, d, t_tol
+        self.ref = reference_trace(scene.vertices, scene.faces, o, d)
+        self.stack = trace(scene, o, d, backend=backend)
+
+    def compare(self, got, where):
+        s = self.scene
+        c = compare_hits(self.ref, got.tri, got.t, s.vertices, s.faces, self.o, self.d)
+        assert c.n_mismatch == 0, f"{where}: {c.summary()}"
+        assert c.t_rel_err_max <= self.t_tol, f"{where}: {c.summary()}"
+        return c
+
+    def assert_like_stack(self, got, where):
+        """No mismatch against the reference (so a triangle other than the stack's is a tie),
+        the same hit or miss as the stack traversal, t equal to rounding."""
+        self.compare(got, where)
+        stack = self.stack
+        hit = got.tri >= 0
+        assert np.array_equal(hit, stack.tri >= 0), f"{where}: {np.sum(hit != (stack.tri >= 0))} rays hit/miss differently from the stack traversal"
+        dt = np.abs(got.t[hit] - stack.t[hit]) / np.abs(stack.t[hit])
+        assert np.all(dt <= self.t_tol), f"{where}: t differs from the stack traversal by {dt.max():.1e} (ray {np.flatnonzero(hit)[np.argmax(dt)]})"
+
+
+_cases: dict = {}
+
+
+def _case(kind, name, backend):
+    key = (kind, name, id(backend))
+    if key not in _cases:
+        scene = _preset(name)
+        if kind == "camera+random":
+            o, d = camera_rays(scene.camera)
+            o2, d2 = _random_rays(scene, 1500, seed=7)
+            o, d = np.concatenate([o, o2]), np.concatenate([d, d2])
+            _cases[key] = Case(scene, o, d, backend)
+        else:
+            # Rays in a plane meet many surfaces at grazing angles, where the float32 test's t
+            # is off by more (the stack traversal's too)
+            o, d = _split_plane_rays(scene, scene_kdtree(scene), 1500, seed=11)
+            _cases[key] = Case(scene, o, d, backend, t_tol=1e-4)
+    return _cases[key]
+
+
+# ------------------------------------------------------------------------------------------------
+# every variant against the stack traversal and the float64 reference
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("scene_name", list(SCENES))
+def test_variant_matches_stack_and_reference(backend, scene_name, variant):
+    """Camera rays and random rays from inside and outside the scene."""
+    case = _case("camera+random", scene_name, backend)
+    case.compare(case.stack, f"{scene_name} stack")
+    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant(variant))
+    case.assert_like_stack(got, f"{scene_name} {variant}")
+    assert np.mean(case.ref.tri >= 0) > 0.1
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_rays_in_split_planes(backend, variant):
+    """Axis-aligned walls put split planes where rays lie in them: both sides must be searched
+    (the stackless traversals make one pass per side)."""
+    case = _case("split-planes", "sponza", backend)
+    case.compare(case.stack, "sponza stack, rays in split planes")
+    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant(variant))
+    case.assert_like_stack(got, f"sponza {variant}, rays in split planes")
+
+
+@pytest.mark.parametrize("variant", ["stack"] + VARIANTS)
+def test_render_matches_reference(backend, variant):
+    """The renderer's kernel (2D blocks: one packet per block for the packet traversal)."""
+    from rtlab.check import check_render
+    scene = _preset("bunny")
+    result = render(scene, backend, Variant(variant, block=(16, 4)), write_hits=True)
+    report = check_render(scene, result, scene.camera)
+    assert report.hits.n_mismatch == 0, report.summary()
+    assert report.hits.t_rel_err_max <= T_REL_TOL, report.summary()
+    assert report.hits.n_hits_ref > 0
+
+
+@pytest.mark.parametrize("variant", ["stack"] + VARIANTS)
+def test_single_triangle_scene(backend, variant):
+    """The smallest trees: a kd root that is a leaf, a BVH whose root holds one leaf twice."""
+    scene = _scene_from_mesh("one", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    o = np.array([[0.2, 0.2, 1], [0.9, 0.9, 1], [0.25, 0.25, -1], [0, 0, 1]], np.float32)
+    d = np.array([[0, 0, -1], [0, 0, -1], [0, 0, 1], [0, 0, -1]], np.float32)
+    got = trace(scene, o, d, backend=backend, variant=Variant(variant))
+    assert got.tri.tolist() == [0, -1, 0, 0]
+    assert np.allclose(got.t[[0, 2, 3]], 1.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# a deep tree: short stacks far smaller than the depth, falling back to restarts
+# ------------------------------------------------------------------------------------------------
+DEEP_LEVELS, DEEP_SHRINK = 48, 0.6
+
+
+@pytest.fixture(scope="module")
+def deep_scene():
+    """Triangle pairs in boxes shrinking by 0.6 toward the origin, level after level: the SAH
+    cuts one level off at a time, so the tree is as deep as there are levels."""
+    rng = np.random.default_rng(1)
+    corners = [rng.uniform(DEEP_SHRINK, 1.0, size=(3, 3)) * DEEP_SHRINK ** k
+               for k in range(DEEP_LEVELS) for _ in range(2)]
+    vertices = np.concatenate(corners).astype(np.float32)
+    faces = np.arange(len(vertices), dtype=np.int32).reshape(-1, 3)
+    scene = _scene_from_mesh("deep", vertices, faces)
+    tree = build_kdtree(scene.vertices, scene.faces, KdBuildParams(max_depth=63))
+    assert tree.depth > 30, f"the deep scene only made a tree of depth {tree.depth}"
+    # Rays at every scale, most aimed at a triangle of their level or a few levels deeper
+    n = 3000
+    level = rng.integers(0, DEEP_LEVELS, size=n)
+    s = (DEEP_SHRINK ** level)[:, None]
+    o = (rng.uniform(-0.2, 1.3, size=(n, 3)) * s).astype(np.float32)
+    tri = 2 * np.minimum(level + rng.integers(0, 4, size=n), DEEP_LEVELS - 1) + rng.integers(0, 2, size=n)
+    target = np.where(rng.uniform(size=(n, 1)) < 0.7, scene.vertices[scene.faces[tri]].mean(1),
+                      rng.uniform(0, 1, size=(n, 3)) * s)
+    d = target - o
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    return scene, tree, o, d
+
+
+@pytest.mark.parametrize("variant", [Variant("shortstack", short_stack=k) for k in (1, 2, 4, 8)]
+                         + [Variant(v) for v in ("restart", "ropes", "packet")], ids=lambda v: v.label().split("/")[0])
+def test_deep_tree(backend, deep_scene, variant):
+    scene, tree, o, d = deep_scene
+    _use_tree(scene, backend, tree)
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    stack = trace(scene, o, d, backend=backend)
+    got = trace(scene, o, d, backend=backend, variant=variant)
+    assert np.mean(stack.tri >= 0) > 0.5
+    # Tiny, steep triangles: the float32 test's t is off by up to ~1e-4 (the stack's too), and by
+    # more between two kernels that contract multiply-adds differently; the triangle ids are exact
+    for name, r in (("stack", stack), (variant.label(), got)):
+        c = compare_hits(ref, r.tri, r.t, scene.vertices, scene.faces, o, d)
+        assert c.n_mismatch == 0, f"deep tree (depth {tree.depth}) {name}: {c.summary()}"
+    assert np.array_equal(got.tri, stack.tri), f"{variant.label()}: {np.sum(got.tri != stack.tri)} rays differ from the stack"
+    hit = stack.tri >= 0
+    assert np.all(np.abs(got.t[hit] - stack.t[hit]) <= 1e-3 * stack.t[hit])
+
+
+def test_stack_size_follows_tree_depth(backend, deep_scene):
+    """The per-thread (and the packet's shared) stack is sized from the tree: depth + 1."""
+    scene, tree, _, _ = deep_scene
+    ds = DeviceScene.upload(backend, scene, tree)
+    assert ds.features(Variant("stack")).stack_size == tree.depth + 1
+    assert ds.features(Variant("packet")).stack_size == tree.depth + 1
+    bvh_stack = ds.features(Variant("bvh")).stack_size
+    assert bvh_stack == build_bvh(scene.vertices, scene.faces).depth + 1
+
+
+# ------------------------------------------------------------------------------------------------
+# any hit (shadow rays) agrees with closest hit on whether something is hit
+# ------------------------------------------------------------------------------------------------
+ANY_HIT_KERNEL = r"""
+#define RT_PACKET_KERNELS 1
+#include "rt_traverse.h"
+#if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+#include "rt_packet.h"
+#endif
+#if defined(__CUDACC__)
+#define RAY_INDEX ((int)(blockIdx.x * blockDim.x + threadIdx.x))
+#define LANE ((int)threadIdx.x)
+#define LOCAL_DECL __shared__
+#else
+#define RAY_INDEX ((int)get_global_id(0))
+#define LANE ((int)get_local_id(0))
+#define LOCAL_DECL __local
+#endif
+RT_KERNEL void any_hits(RT_SCENE_PARAMS, RT_GLOBAL const float4 *box, RT_GLOBAL const float4 *origins,
+                        RT_GLOBAL const float4 *directions, RT_GLOBAL int *blocked, int n)
+{
+    int i = RAY_INDEX;
+    int valid = i < n;
+    int j = valid ? i : 0;
+    Ray ray = make_ray(xyz(origins[j]), xyz(directions[j]), origins[j].w, directions[j].w);
+#if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+    LOCAL_DECL KdPacketShared packet;
+    Hit hit = make_miss(ray.tmax);
+    traverse_kd_packet(RT_SCENE_ARGS, box[0], box[1], &ray, valid, &hit, 1, &packet, LANE);
+    int any = hit.tri >= 0;
+#else
+    int any = trace_any(RT_SCENE_ARGS, box[0], box[1], &ray);
+#endif
+    if (valid)
+        blocked[i] = any;
+}
+"""
+
+
+@pytest.mark.parametrize("variant", ["stack"] + VARIANTS)
+def test_any_hit_agrees_with_closest_hit(backend, variant, tmp_path):
+    """Shadow-ray segments (finite tmax) and whole rays: blocked exactly when a closest hit exists."""
+    case = _case("camera+random", "sponza", backend)
+    scene = case.scene
+    n = len(case.o)
+    tmax = np.where(np.arange(n) % 2 == 0, np.inf, np.random.default_rng(3).uniform(0.1, 20.0, n)).astype(np.float32)
+    v = Variant(variant)
+    closest = trace(scene, case.o, case.d, backend=backend, variant=v, tmax=tmax)
+    src = tmp_path / ("any_hit" + backend.extension)
+    src.write_text(ANY_HIT_KERNEL)
+    ds = tracing.device_scene(scene, backend)
+    program = backend.compile(src, build_defines(v, ds.features(v)))
+    box = np.zeros((2, 4), np.float32)
+    box[:, :3] = padded_bounds(scene.bounds())
+    out = backend.empty(4 * n)
+    program.launch("any_hits", (n,), (64,),
+                   ds.scene_args(v) + [backend.to_device(box), backend.to_device(float4_rows(case.o, 0.0)),
+                                       backend.to_device(float4_rows(case.d, tmax)), out, np.int32(n)])
+    blocked = backend.to_host(out, np.int32, n).astype(bool)
+    assert 0.2 < blocked.mean() < 0.95
+    differ = np.flatnonzero(blocked != (closest.tri >= 0))
+    assert differ.size == 0, f"{variant}: any-hit and closest-hit disagree on {differ.size} rays, e.g. {differ[:5]}"
+
+
+# ------------------------------------------------------------------------------------------------
+# host structures: ropes, BVH
+# ------------------------------------------------------------------------------------------------
+def _node_boxes(tree):
+    """Cell box of every kd node, level by level from the root box (independent of ropes.py)."""
+    n = len(tree.nodes)
+    boxes = np.zeros((n, 2, 3), np.float32)
+    boxes[0] = tree.bounds
+    leaf = tree.is_leaf()
+    axis, split, child = tree.split_axis(), tree.split_pos(), tree.child_or_count()
+    level = np.array([0])
+    while level.size:
+        level = level[~leaf[level]]
+        lo, hi = child[level], child[level] + 1
+        boxes[lo] = boxes[level]
+        boxes[hi] = boxes[level]
+        boxes[lo, 1, axis[level]] = split[level]
+        boxes[hi, 0, axis[level]] = split[level]
+        level = np.concatenate([lo, hi])
+    return boxes
+
+
+def test_ropes_point_to_nodes_covering_each_leaf_face():
+    """Every rope of every leaf face points to a node whose box touches that face and covers it;
+    -1 exactly on the scene boundary. Leaf records hold the leaf's box and objects."""
+    scene = rtlab.load_scene("default", size=16)
+    tree = scene_kdtree(scene)
+    boxes = _node_boxes(tree)
+    ropes = build_ropes(tree)
+    leaves = np.flatnonzero(tree.is_leaf())
+    assert np.array_equal(ropes.leaf_nodes, leaves)
+    rec = ropes.records.reshape(-1, 4, 4)
+    bits = rec.view(np.int32)
+    assert np.array_equal(rec[:, 0, :3], boxes[leaves, 0]) and np.array_equal(rec[:, 1, :3], boxes[leaves, 1])
+    assert np.array_equal(bits[:, 3, 0], tree.nodes[leaves, 1])
+    assert np.array_equal(ropes.nodes[leaves, 1], np.arange(len(leaves)))
+    leaf_ropes = np.stack([bits[:, 0, 3], bits[:, 1, 3], bits[:, 2, 0], bits[:, 2, 1], bits[:, 2, 2], bits[:, 2, 3]], 1)
+    n_checked = 0
+    for face in range(6):
+        axis, upper = face // 2, face % 2
+        r = leaf_ropes[:, face]
+        face_coord = boxes[leaves, upper, axis]
+        on_boundary = face_coord == tree.bounds[upper, axis]
+        assert np.array_equal(r < 0, on_boundary), f"face {face}: ropes missing or leaving the scene"
+        inside = ~on_boundary
+        nb = boxes[r[inside]]
+        lb = boxes[leaves[inside]]
+        # The neighbour's opposite face lies in the leaf's face plane ...
+        assert np.array_equal(nb[:, 1 - upper, axis], face_coord[inside])
+        # ... and covers the leaf's face in the two other axes
+        for other in {0, 1, 2} - {axis}:
+            assert np.all(nb[:, 0, other] <= lb[:, 0, other]) and np.all(nb[:, 1, other] >= lb[:, 1, other])
+        n_checked += int(inside.sum())
+    assert n_checked > len(leaves)
+
+
+def test_bvh_invariants():
+    """Every usable triangle in exactly one leaf; child boxes contain their triangles and the
+    boxes of their children; leaves within the device encoding; depth as the stack needs it."""
+    scene = rtlab.load_scene("default", size=16)
+    v = scene.vertices.copy()
+    f = np.concatenate([scene.faces, [[0, 0, 1]], [[0, 1, 1]]]).astype(np.int32)   # two zero-area triangles
+    bvh = build_bvh(v, f)
+    tri_lo, tri_hi = v[f].min(axis=1), v[f].max(axis=1)
+    seen = np.zeros(len(f), np.int64)
+    max_depth = 0
+    todo = [(0, 1)]
+    while todo:
+        node, depth = todo.pop()
+        for c in range(2):
+            ref = int(bvh.child_ref[node, c])
+            lo, hi = bvh.child_lo[node, c], bvh.child_hi[node, c]
+            if ref >= 0:
+                assert np.all(bvh.child_lo[ref] >= lo) and np.all(bvh.child_hi[ref] <= hi)
+                todo.append((ref, depth + 1))
+                continue
+            first, count = decode_leaf(ref)
+            assert 1 <= count <= MAX_LEAF
+            tris = bvh.objects[first:first + count]
+            seen[tris] += 1
+            assert np.all(tri_lo[tris] >= lo) and np.all(tri_hi[tris] <= hi)
+            max_depth = max(max_depth, depth)
+    assert np.all(seen[:-2] == 1), "a usable triangle is missing or referenced twice"
+    assert np.all(seen[-2:] == 0), "a zero-area triangle was referenced"
+    assert bvh.depth == max_depth
+    assert np.array_equal(bvh.bounds, np.stack([tri_lo[:-2].min(0), tri_hi[:-2].max(0)]))
+    node_data = bvh.node_data().reshape(-1, 4, 4)
+    assert np.array_equal(node_data.view(np.int32)[:, 3, :2], bvh.child_ref)
+    assert np.array_equal(node_data[:, 0, [0, 2]], bvh.child_lo[:, 0, :2])
+    assert np.array_equal(node_data[:, 2, [1, 3]], bvh.child_hi[:, :, 2])
+
+
+def test_bvh_cache_round_trip(tmp_path):
+    from rtlab.accel.bvh import load_or_build_bvh
+    scene = rtlab.load_scene("default", size=16)
+    a, cached_a = load_or_build_bvh(scene.vertices, scene.faces, cache_dir=tmp_path)
+    b, cached_b = load_or_build_bvh(scene.vertices, scene.faces, cache_dir=tmp_path)
+    assert (cached_a, cached_b) == (False, True)
+    for name in ("child_lo", "child_hi", "child_ref", "objects", "bounds"):
+        assert np.array_equal(getattr(a, name), getattr(b, name))
+    assert a.depth == b.depth
+
+
+# ------------------------------------------------------------------------------------------------
+# kernels and loader
+# ------------------------------------------------------------------------------------------------
+def test_packet_uses_the_traversal_step_and_single_ray_steps_refuse_it(backend):
+    from rtlab.errors import KernelBuildError
+    assert primary_step(Variant("packet")) == "03_traversal"
+    assert {primary_step(Variant(v)) for v in TRAVERSALS if v != "packet"} == {"00_primary"}
+    defines = build_defines(Variant("packet"), SceneFeatures(stack_size=32))
+    with pytest.raises(KernelBuildError, match="03_traversal"):
+        backend.compile(kernel_source("00_primary", backend.language), defines)
+
+
+@pytest.mark.skipif(not __import__("rtlab.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
+@pytest.mark.parametrize("variant", list(TRAVERSALS))
+def test_traversal_step_compiles_for_sm90(variant):
+    """03_traversal.cu with every traversal: compiles with nvcc; registers, stack and shared
+    memory reported (the paper's "Reg. usage" and occupancy rows)."""
+    from rtlab.nvcc import nvcc_resources
+    defines = build_defines(Variant(variant), SceneFeatures(stack_size=30, n_lights=2, n_materials=8))
+    report = nvcc_resources(kernel_source("03_traversal", "cuda"), defines)
+    assert set(report) == {"trace_rays", "render_primary"}
+    for name, r in report.items():
+        print(f"{variant}:{name}: {r.registers} registers, {r.local_bytes} B stack, {r.shared_bytes} B shared, "
+              f"{r.spill_bytes} B spills, occupancy {r.occupancy:.0%} at 128 threads")
+        assert 0 < r.registers <= 255
+        assert (r.shared_bytes > 0) == (variant == "packet")
