@@ -244,7 +244,7 @@ def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separ
                       str(PAPER_TABLE3_REGISTERS.get(r.isect, "-")), str(r.bytes_read), str(r.bytes_precomputed),
                       r.error_text(), f"{r.render.mrays:,.1f}" if r.render else "-",
                       r.render.error_text() if r.render else "-")
-    console.print(table)
+    Console(width=max(console.width, 200)).print(table)   # too wide to fold legibly in 80 columns
     if any(not be.is_gpu() for be in bes):
         console.print("CPU device: times are not comparable with the paper's GPU figures.")
     if md:
@@ -282,7 +282,7 @@ def bench_robustness(backends: str = typer.Option("auto", help="comma-separated:
         table.add_column(col, justify="right")
     for r in shown:
         table.add_row(*row_cells(r))
-    console.print(table)
+    Console(width=max(console.width, 180)).print(table)   # too wide to fold legibly in 80 columns
     if md:
         cmd = "rtlab bench robustness " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench robustness"
         with open(md, "a") as f:
@@ -365,6 +365,60 @@ def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help
 from .labs.cli import register as _register_course_commands  # noqa: E402
 
 _register_course_commands(app)
+
+
+@bench_app.command("traversal")
+def bench_traversal(scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conference", help="comma-separated presets"),
+                    backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                    device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                    size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                    views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
+                    repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                    check: bool = typer.Option(True, help="error against the float64 reference"),
+                    traversals: str = typer.Option("stack,packet,restart,shortstack,ropes,bvh"),
+                    short_stack: int = typer.Option(4, help="short-stack entries"),
+                    isect: str = typer.Option("moller"), block: str = typer.Option("32x4"),
+                    md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """The paper's Table 4: every traversal variant (and the BVH): fps, Mrays/s, registers,
+    occupancy and error, beside the paper's figures."""
+    from .backends import get_backend
+    from .benches.traversal import bench_table4, resources_text, speedup_text, table4_markdown
+    from .kernels import Variant
+    bx, by = (int(v) for v in block.lower().split("x"))
+    base = Variant(intersection=isect, block=(bx, by), short_stack=short_stack)
+    names = [t for t in traversals.split(",") if t]
+    for t in names:
+        base.with_(traversal=t)                   # unknown names fail here, before any work
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    rows = []
+    for scene, view in _bench_scenes(scenes, views, size):
+        _tree(scene)
+        for be in bes:
+            with console.status(f"Table 4 on {scene.name}/{view}, {be.name}...") as status:
+                group = bench_table4(scene, be, names, repeats, check, view, base,
+                                     progress=lambda msg: status.update(msg))
+            for r in group:
+                b = r.bench
+                console.print(f"{b.scene}/{b.view} {b.backend} {r.traversal}: {b.median_ms:.3f} ms, {b.fps:,.1f} fps, "
+                              f"{b.mrays:,.1f} Mrays/s, {resources_text(r)}; {b.error_text()}")
+            rows += group
+    table = Table(title=f"Table 4: traversals, primary rays, {size}x{size}")
+    for col in ("scene", "view", "backend", "traversal", "ms", "fps", "paper fps", "speed-up", "Mrays/s",
+                "regs, occ.", "nvcc regs/stack/shared", "error"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        b, n = r.bench, r.nvcc
+        table.add_row(b.scene, b.view, b.backend, b.variant.split("/")[0], f"{b.median_ms:.3f}", f"{b.fps:,.1f}",
+                      f"{r.paper_fps}" if r.paper_fps and size == 1024 else "-", speedup_text(r), f"{b.mrays:,.1f}",
+                      resources_text(r), f"{n['registers']}/{n['local_bytes']}/{n['shared_bytes']}" if n else "-",
+                      b.error_text())
+    console.print(table)
+    if any(not be.is_gpu() for be in bes):
+        console.print("CPU device: times are not comparable with the paper's GPU figures.")
+    if md:
+        cmd = "rtlab bench traversal " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "rtlab bench traversal"
+        with open(md, "a") as f:
+            f.write(table4_markdown(rows, cmd) + "\n")
 
 
 def main(argv: Optional[list[str]] = None) -> int:

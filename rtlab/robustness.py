@@ -71,7 +71,7 @@ GOALS = {"leaks": (1, 2), "misses": (1, 2), "mismatches": (3, 4, 5, 9), "false_h
 
 # Sizes: "test" keeps PoCL runs short; "bench" is the issue's full suite (127² stairs, 10^5 rays).
 SIZES = {
-    "test": dict(sphere_subdiv=4, sphere_rays=1500, plane_quads=8, plane_rays=1500, split_rays=1500,
+    "test": dict(sphere_subdiv=4, sphere_rays=5000, plane_quads=8, plane_rays=5000, split_rays=1500,
                  stairs_grid=43, scaled_grid=22, slivers=60, sliver_rays=1500, grazing_rays=1500,
                  bad_ray_sets=4, random_rays=1500, random_scenes=("bunny",)),
     "bench": dict(sphere_subdiv=5, sphere_rays=100_000, plane_quads=64, plane_rays=50_000,
@@ -630,6 +630,14 @@ def _backend_spec(backend) -> tuple[str, str | None]:
     return backend.name, backend.device_name
 
 
+def _trace_or_failure(case, backend, isect, traversal, conservative):
+    """trace_case, or the error as a failure string (a build error fails this combination only)."""
+    try:
+        return trace_case(case, backend, isect, traversal, conservative)
+    except Exception as e:
+        return f"error: {type(e).__name__}: {e}"
+
+
 def _isolated_worker(spec, family, size, case_index, combos, out):
     """Child process: trace one case for each (isect, traversal, conservative), reporting each."""
     from .backends import get_backend
@@ -637,11 +645,8 @@ def _isolated_worker(spec, family, size, case_index, combos, out):
     case = family_cases(family, size)[case_index]
     for i, (isect, traversal, cons) in enumerate(combos):
         out.put(("start", i))
-        try:
-            tri, t, ms = trace_case(case, backend, isect, traversal, cons)
-            out.put(("done", i, tri, t, ms))
-        except Exception as e:  # a build error is a failure of this combination, not of the run
-            out.put(("error", i, f"{type(e).__name__}: {e}"))
+        result = _trace_or_failure(case, backend, isect, traversal, cons)
+        out.put(("error", i, result) if isinstance(result, str) else ("done", i, *result))
 
 
 def _run_isolated(backend, family, size, case_index, combos, timeout_s):
@@ -723,7 +728,7 @@ def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Ite
             if family in isolate:
                 outcomes = _run_isolated(backend, family, size, ci, combos, timeout_s)
             else:
-                outcomes = [trace_case(case, backend, i, tr, c) for i, tr, c in combos]
+                outcomes = [_trace_or_failure(case, backend, i, tr, c) for i, tr, c in combos]
             for (isect, traversal, cons), out in zip(combos, outcomes):
                 eff = int(cons) if cons is not None else int(isect == "watertight")
                 row = RobustnessRow(family, case.label, isect, traversal, eff, backend.name, backend.device_name,

@@ -15,18 +15,18 @@ from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness
 FAMILIES = sorted(FAMILY_NAMES)
 TRAVERSALS = list(kernels.TRAVERSALS)
 
-# Traversals that still let rays through with the watertight test and RT_CONSERVATIVE on, as of
-# 2026-11-22 on PoCL: ropes (rt_kd_ropes.h) leaks on families 1 and 2 (e.g. family 2's first case,
-# ray 15, through a vertex of the exact plane), with or without RT_CONSERVATIVE, where the stack,
-# packet, kd-restart, short-stack and BVH traversals leak none. The fix belongs in the traversal;
-# strict: the test fails as soon as ropes is fixed, so that this entry is removed.
-CORNER_LEAKING = {"ropes"}
+# Traversals that still let a few rays through with the watertight test and RT_CONSERVATIVE on
+# (PoCL, 2026-11-22): ropes (rt_kd_ropes.h), 1 of 5000 rays in family 1 and 1 of 15000 in family 2
+# here, 41 of 10^5 and 9 of 1.5 10^5 at the benchmark size; stack, packet, kd-restart, short-stack
+# and BVH leak none. The fix belongs in the traversal. Strict: the test fails once ropes is fixed,
+# so that this entry is removed.
+KNOWN_LEAKING = {"ropes"}
 
 # Leak rates (leaks / rays, worst case and traversal of a family) measured on PoCL 3.1 on
-# 2026-11-22: family 1 Möller 0.165, Wald 0.035, Plücker 0.010; family 2 Möller 0.117, Wald 0.048,
-# Plücker 0.002. Bounded at about twice that (rounding differs on devices with fused multiply-add).
-LEAK_RATE_BOUND = {(1, "moller"): 0.33, (1, "wald"): 0.07, (1, "plucker"): 0.02,
-                   (2, "moller"): 0.24, (2, "wald"): 0.10, (2, "plucker"): 0.01}
+# 2026-11-22: family 1 Möller 0.150, Wald 0.030, Plücker 0.004; family 2 Möller 0.107, Wald 0.038,
+# Plücker 0.004. Bounded at about twice that (rounding differs on devices with fused multiply-add).
+LEAK_RATE_BOUND = {(1, "moller"): 0.30, (1, "wald"): 0.065, (1, "plucker"): 0.01,
+                   (2, "moller"): 0.22, (2, "wald"): 0.08, (2, "plucker"): 0.008}
 # Mismatches (beyond ties) and false hits of the other tests: none measured on PoCL in families
 # 3-9; a small allowance for devices that contract into fused multiply-adds.
 OTHER_RATE_BOUND = 0.005
@@ -50,8 +50,8 @@ def _describe(r) -> str:
 
 
 def _goal_marks(family, traversal):
-    if family in GOALS["leaks"] and traversal in CORNER_LEAKING:
-        return [pytest.mark.xfail(strict=True, reason=f"{traversal} leaks at cell boundaries (see CORNER_LEAKING)")]
+    if family in GOALS["leaks"] and traversal in KNOWN_LEAKING:
+        return [pytest.mark.xfail(strict=True, reason=f"{traversal} leaks a few rays (see KNOWN_LEAKING)")]
     return []
 
 

@@ -34,9 +34,9 @@
 
 /* Relative rounding bound of a plane distance (p - o) * inv_d: three roundings (subtract, reciprocal,
  * multiply) give gamma(3) = 3u/(1-3u), u = 2^-24; comparing two such distances needs twice that
- * (Ize 2013, "Robust BVH Ray Traversal", JCGT 2(2), eq. 7: 1 + 2 gamma(3)). We take 16u: the same
- * bound with room for a reciprocal that is not correctly rounded (NVIDIA OpenCL's 1/x may be off
- * by 2.5 ulp without -cl-fp32-correctly-rounded-divide-sqrt). */
+ * (Ize 2013, "Robust BVH Ray Traversal", JCGT 2(2): pad the far distance; pbrt-v3 multiplies it by
+ * 1 + 2 gamma(3)). We take 16u: that bound with room for a reciprocal that is not correctly rounded
+ * (NVIDIA OpenCL's 1/x may be off by 2.5 ulp without -cl-fp32-correctly-rounded-divide-sqrt). */
 #define RT_T_PAD (16.0f * 5.9604645e-8f)
 
 /* Precomputed triangle data in tri_data, float4 rows per triangle (sync with rtlab/accel/tri_data.py). */

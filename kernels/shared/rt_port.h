@@ -25,6 +25,12 @@
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
+#define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */
+#define RT_MEM_REGISTERS 3         /* ray origin/direction in registers, components picked by selects */
+#define RT_MEM_SHARED 4            /* ... in shared memory: the paper's cure for local-memory rays (§3.1.1) */
+#define RT_MEM_INDEXED 5           /* ... as arrays indexed by the split axis: what spilled in 2008 */
+#define RT_ORDER_ROWS 0            /* a block's threads take its pixels row by row */
+#define RT_ORDER_MORTON 1          /* ... in Morton (Z) order: each warp an 8x4 tile (§4.1, coherence) */
 
 #ifndef RT_ISECT
 #define RT_ISECT RT_ISECT_MOLLER
@@ -37,6 +43,15 @@
 #endif
 #ifndef RT_NODE_MEM
 #define RT_NODE_MEM RT_MEM_GLOBAL
+#endif
+#ifndef RT_CONST_MEM               /* camera, lights, materials: RT_MEM_CONSTANT or RT_MEM_GLOBAL */
+#define RT_CONST_MEM RT_MEM_CONSTANT
+#endif
+#ifndef RT_RAY_MEM                 /* RT_MEM_REGISTERS, RT_MEM_SHARED (01_memory kernels) or RT_MEM_INDEXED */
+#define RT_RAY_MEM RT_MEM_REGISTERS
+#endif
+#ifndef RT_RAY_ORDER
+#define RT_RAY_ORDER RT_ORDER_ROWS
 #endif
 #ifndef RT_STACK_SIZE              /* the loader sets tree depth + 1, so the stack cannot overflow */
 #define RT_STACK_SIZE 64
@@ -74,7 +89,11 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 #define RT_FN static inline
 #define RT_KERNEL __kernel
 #define RT_GLOBAL __global
+#if RT_CONST_MEM == RT_MEM_GLOBAL  /* frame, lights, materials passed as global buffers (§3.1.1 study) */
+#define RT_CONST __global
+#else
 #define RT_CONST __constant
+#endif
 #define RT_INF INFINITY
 #define rt_as_float(i) as_float(i)
 #define rt_as_int(f) as_int(f)
@@ -102,7 +121,20 @@ RT_FN float3 cross3(float3 a, float3 b)
 RT_FN float3 normalize3(float3 a) { return mul3(a, 1.0f / rt_sqrt(dot3(a, a))); }
 /* Component by run-time index with selects, not a[axis]: indexing a register vector is what pushed
  * the paper's rays into local memory (§3.1.1). */
+#if RT_RAY_MEM == RT_MEM_INDEXED
+/* The 2008 way, kept to show its cost: a per-thread array indexed at run time lives in local memory
+ * unless the compiler turns the index into selects (rtlab bench memory prints nvcc's stack bytes). */
+RT_FN float get3(float3 a, int axis)
+{
+    float c[3];
+    c[0] = a.x;
+    c[1] = a.y;
+    c[2] = a.z;
+    return c[axis];
+}
+#else
 RT_FN float get3(float3 a, int axis) { return axis == 0 ? a.x : (axis == 1 ? a.y : a.z); }
+#endif
 RT_FN int finite3(float3 a) { return rt_isfinite(a.x) && rt_isfinite(a.y) && rt_isfinite(a.z); }
 
 #endif /* RT_PORT_H */
