@@ -16,7 +16,13 @@ from .paths import KERNEL_DIR
 # here once its kernels exist in both languages.
 TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5}
 INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
-NODE_MEMORY = {"global": 0}
+NODE_MEMORY = {"global": 0, "texture": 1}
+# Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
+CONST_MEMORY = {"constant": 2, "global": 0}
+RAY_MEMORY = {"registers": 3, "shared": 4, "indexed": 5}
+RAY_ORDERS = {"rows": 0, "morton": 1}
+MEMORY_STEP = "01_memory"
+TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.tracing.TRACE_BLOCK)
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -27,8 +33,15 @@ DEFAULT_PRIMARY_STEP = "00_primary"
 
 
 def primary_step(variant: "Variant") -> str:
-    """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant."""
-    return PRIMARY_STEPS.get(variant.traversal, DEFAULT_PRIMARY_STEP)
+    """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant: lab step
+    01's kernels when the variant moves constants or the ray (only they declare those placements)."""
+    step = PRIMARY_STEPS.get(variant.traversal)
+    if step is not None and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
+        raise VariantError(f"{variant.traversal} traversal has its own kernels ({step}), which keep constants "
+                           "in constant memory, the ray in registers and threads on pixels in rows")
+    if variant.needs_memory_kernels():
+        return MEMORY_STEP
+    return step or DEFAULT_PRIMARY_STEP
 
 
 def lab_steps() -> list[str]:
@@ -68,6 +81,10 @@ class Variant:
     node_memory: str = "global"
     block: tuple[int, int] = DEFAULT_BLOCK
     short_stack: int = 4          # short-stack entries (Horn et al. 2007), RT_SHORT_STACK_SIZE
+    constants: str = "constant"   # camera, lights, materials: CONST_MEMORY (RT_CONST_MEM)
+    ray_memory: str = "registers" # the ray: RAY_MEMORY (RT_RAY_MEM); "shared" is CUDA only
+    max_registers: int = 0        # register cap per thread (-maxrregcount / -cl-nv-maxrregcount); 0: none
+    ray_order: str = "rows"       # threads to pixels within a block: RAY_ORDERS (RT_RAY_ORDER)
 
     def __post_init__(self):
         if not 1 <= int(self.short_stack) <= 64:
@@ -75,15 +92,30 @@ class Variant:
         _lookup(TRAVERSALS, self.traversal, "traversal")
         _lookup(INTERSECTIONS, self.intersection, "intersection test")
         _lookup(NODE_MEMORY, self.node_memory, "memory placement")
+        _lookup(CONST_MEMORY, self.constants, "constant placement")
+        _lookup(RAY_MEMORY, self.ray_memory, "ray placement")
+        _lookup(RAY_ORDERS, self.ray_order, "ray order")
         if len(self.block) != 2 or min(self.block) < 1:
             raise VariantError(f"block must be two positive sizes (x, y), got {self.block}")
+        if self.max_registers and not 16 <= int(self.max_registers) <= 255:
+            raise VariantError(f"max_registers must be 0 (no cap) or 16..255, got {self.max_registers}")
+        if self.ray_order == "morton" and any(b & (b - 1) for b in self.block):
+            raise VariantError(f"Morton ray order needs power-of-two block sides, got {self.block[0]}x{self.block[1]}")
+
+    def needs_memory_kernels(self) -> bool:
+        """Whether only lab step 01's entry kernels can run this variant."""
+        return self.constants != "constant" or self.ray_memory == "shared"
 
     def with_(self, **kw) -> "Variant":
         return replace(self, **kw)
 
     def label(self) -> str:
         traversal = f"shortstack{self.short_stack}" if self.traversal == "shortstack" else self.traversal
-        return f"{traversal}/{self.intersection}/{self.node_memory}/{self.block[0]}x{self.block[1]}"
+        extra = "".join([f"/const-{self.constants}" if self.constants != "constant" else "",
+                         f"/ray-{self.ray_memory}" if self.ray_memory != "registers" else "",
+                         f"/{self.ray_order}" if self.ray_order != "rows" else "",
+                         f"/maxrreg{self.max_registers}" if self.max_registers else ""])
+        return f"{traversal}/{self.intersection}/{self.node_memory}/{self.block[0]}x{self.block[1]}{extra}"
 
 
 @dataclass(frozen=True)
@@ -112,6 +144,9 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_TRAVERSAL": _lookup(TRAVERSALS, variant.traversal, "traversal"),
         "RT_ISECT": _lookup(INTERSECTIONS, variant.intersection, "intersection test"),
         "RT_NODE_MEM": _lookup(NODE_MEMORY, variant.node_memory, "memory placement"),
+        "RT_CONST_MEM": _lookup(CONST_MEMORY, variant.constants, "constant placement"),
+        "RT_RAY_MEM": _lookup(RAY_MEMORY, variant.ray_memory, "ray placement"),
+        "RT_RAY_ORDER": _lookup(RAY_ORDERS, variant.ray_order, "ray order"),
         "RT_STACK_SIZE": max(1, int(features.stack_size)),
         "RT_SHORT_STACK_SIZE": int(variant.short_stack),
         "RT_SMOOTH_NORMALS": int(features.smooth_normals),
@@ -123,10 +158,36 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
+    if variant.ray_memory == "shared":
+        # shared-memory ray slots: one a thread of a render block / a trace_rays block
+        defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]
+        defines["RT_TRACE_THREADS"] = TRACE_THREADS
     defines.update({k: int(v) for k, v in extra.items()})
     return defines
 
 
+def build_options(variant: Variant, backend) -> tuple[str, ...]:
+    """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study. ``backend``
+    is a Backend or a language name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
+    if not variant.max_registers:
+        return ()
+    n = int(variant.max_registers)
+    language = backend if isinstance(backend, str) else backend.language
+    if language == "cuda":
+        return (f"-maxrregcount={n}",)
+    if not isinstance(backend, str) and getattr(backend, "is_nvidia", lambda: False)():
+        return (f"-cl-nv-maxrregcount={n}",)
+    return ()
+
+
 def load_program(backend, step: str, variant: Variant, features: SceneFeatures, **extra):
     """Compile (or fetch from the backend's cache) the step's kernel for this variant and scene."""
-    return backend.compile(kernel_source(step, backend.language), build_defines(variant, features, **extra))
+    if variant.needs_memory_kernels() and step != MEMORY_STEP:
+        raise VariantError(f"{variant.label()} needs lab step {MEMORY_STEP}'s kernels (constants in global "
+                           f"memory or a shared-memory ray), not {step}'s")
+    if variant.ray_memory == "shared" and backend.language != "cuda":
+        raise VariantError("a ray in shared (OpenCL: local) memory is CUDA only: OpenCL C 1.2 cannot pass a "
+                           "__local ray to the shared device functions (no generic address space on PoCL 3.1 or "
+                           "NVIDIA's OpenCL)")
+    return backend.compile(kernel_source(step, backend.language), build_defines(variant, features, **extra),
+                           build_options(variant, backend))

@@ -6,8 +6,8 @@
  * children it needs and for its nearer child; between two barriers thread 0 takes the child most
  * rays meet first, pushes the other when some ray needs it, or pops. The stack holds a node and
  * its cell box (shared by all rays): on a pop every ray clips itself to the popped cell, so no
- * ray needs a stack of its own. Rays that do not need a node just skip it (they keep voting
- * nothing); at a leaf each ray that needs it tests the leaf's triangles against its own ray.
+ * ray needs a stack of its own. Rays that do not need a node just skip it (and cast no vote); at
+ * a leaf each ray that needs it tests the leaf's triangles against its own ray.
  * Every thread of the block must call the traversal (invalid ones with valid = 0): it contains
  * barriers. The paper found the packet slow on CUDA (15.8 vs 43.2 fps): two barriers per node.
  *

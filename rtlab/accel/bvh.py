@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import paths
+from ..errors import RtlabError, SceneError
 
 FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same inputs changes
 LEAF_BITS = 4
@@ -46,9 +47,9 @@ class BvhBuildParams:
 
     def __post_init__(self):
         if not 1 <= self.max_leaf_size <= MAX_LEAF:
-            raise ValueError(f"max_leaf_size must be 1..{MAX_LEAF}, got {self.max_leaf_size}")
+            raise RtlabError(f"BVH max_leaf_size must be 1..{MAX_LEAF} (4 bits in a leaf ref), got {self.max_leaf_size}")
         if self.bins < 2:
-            raise ValueError(f"bins must be at least 2, got {self.bins}")
+            raise RtlabError(f"BVH bins must be at least 2, got {self.bins}")
 
     def key(self) -> str:
         return (f"{FORMAT_VERSION}-b{self.bins}-ml{self.max_leaf_size}-ct{self.cost_traversal}"
@@ -269,9 +270,12 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = 
     vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-        raise ValueError("face indices out of range of the vertex array")
+        raise SceneError(f"BVH build: face indices out of range of the {len(vertices)} vertices")
     tri_lo, tri_hi, usable = _usable_boxes(vertices, faces)
     order = np.flatnonzero(usable).astype(np.int32)
+    if len(order) >= 1 << (31 - LEAF_BITS):
+        raise SceneError(f"BVH build: {len(order):,} triangles, more than a leaf ref addresses "
+                         f"({1 << (31 - LEAF_BITS):,})")
     tri_lo, tri_hi = np.ascontiguousarray(tri_lo), np.ascontiguousarray(tri_hi)
     centroid = 0.5 * (tri_lo.astype(np.float64) + tri_hi)
     child_lo, child_hi, child_ref, depth = _build(order, tri_lo, tri_hi, centroid, params.bins,

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..errors import RtlabError
 from .kdtree import LEAF_TAG, KdTree
 
 RECORD_FLOAT4S = 4
@@ -92,6 +93,9 @@ def build_ropes(tree: KdTree) -> KdRopes:
     words = np.ascontiguousarray(nodes[:, 0])
     splits = np.ascontiguousarray(nodes[:, 1]).view(np.float32)
     bounds = np.asarray(tree.bounds, np.float32)
+    inner = np.flatnonzero((words & 3) != LEAF_TAG)
+    if np.any((words[inner] >> 2) <= inner):
+        raise RtlabError("ropes need every kd node's children after it in the node list (top-down layout)")
     boxes, ropes = _build_ropes(words, splits, bounds)
     leaf_nodes = np.flatnonzero((words & 3) == LEAF_TAG).astype(np.int32)
     n_leaves = len(leaf_nodes)
