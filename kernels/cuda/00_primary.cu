@@ -20,8 +20,8 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).
 RT_KERNEL void render_primary(RT_SCENE_PARAMS, unsigned int *__restrict__ pixels, float4 *__restrict__ hits)
 {
-    int x = blockIdx.x * blockDim.x + threadIdx.x;
-    int y = blockIdx.y * blockDim.y + threadIdx.y;
+    int x, y;
+    block_pixel(blockIdx.x, blockIdx.y, blockDim.x, blockDim.y, threadIdx.x, threadIdx.y, &x, &y);
     if (x >= c_frame.width || y >= c_frame.height)
         return;
     Hit hit;

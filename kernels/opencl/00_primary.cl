@@ -19,8 +19,9 @@ __kernel void render_primary(RT_SCENE_PARAMS, __global unsigned int *restrict pi
                              __global float4 *restrict hits, __constant RtFrame *frame,
                              __constant RtLight *lights, __constant RtMaterial *materials)
 {
-    int x = get_global_id(0);
-    int y = get_global_id(1);
+    int x, y;
+    block_pixel(get_group_id(0), get_group_id(1), get_local_size(0), get_local_size(1), get_local_id(0),
+                get_local_id(1), &x, &y);
     if (x >= frame->width || y >= frame->height)
         return;
     Hit hit;

@@ -159,6 +159,7 @@ RT_FN Hit trace_one_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
     Hit hit = make_miss(ray.tmax);
     traverse_kd_packet(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, valid, &hit, 0, sh, lane);
+    refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
     return hit;
 }
 
@@ -171,6 +172,7 @@ RT_FN unsigned int render_pixel_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *
     Ray ray = camera_ray(frame, x, y);
     *hit = make_miss(ray.tmax);
     traverse_kd_packet(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, valid, hit, 0, sh, lane);
+    refine_hit_t(RT_SCENE_ARGS, &ray, hit);
     return pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &ray, hit));
 }
 

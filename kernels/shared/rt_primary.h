@@ -6,29 +6,29 @@
 #include "rt_traverse.h"
 #include "rt_shade.h"
 
-/* Recompute the closest hit's distance from the triangle's plane, t = n.(v0 - o) / n.d with
- * n = e1 x e2. Moller-Trumbore's t = e2.(s x e1) / det cancels badly when the origin is far from a
- * small triangle seen at a grazing angle (1.8e-5 relative on SPONZA); the plane form stays near
- * float32 rounding. Done once per ray, so the intersection loop is unchanged. */
-RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
+/* Closest hit along *ray, its distance refined. The ray may live anywhere the pointer reaches: lab
+ * step 01's CUDA kernels keep it in shared memory (§3.1.1). */
+RT_FN Hit closest_hit(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Ray *ray)
 {
-    if (hit->tri < 0)
-        return;
-    float3 v0 = xyz(load_tri_vertex(hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_tri_vertex(hit->tri, 1)), v0), sub3(xyz(load_tri_vertex(hit->tri, 2)), v0));
-    float t = dot3(n, sub3(v0, ray->o)) / dot3(n, ray->d);
-    if (t > ray->tmin && t < ray->tmax)
-        hit->t = t;
+    Hit hit = make_miss(ray->tmax);
+    trace_closest(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, ray, &hit);
+    refine_hit_t(RT_SCENE_ARGS, ray, &hit);
+    return hit;
 }
 
 /* Closest hit of one ray: the work of trace_rays. origin.w = tmin, direction.w = tmax. */
 RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origin, float4 direction)
 {
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
-    Hit hit = make_miss(ray.tmax);
-    trace_closest(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, &hit);
-    refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
-    return hit;
+    return closest_hit(RT_SCENE_ARGS, frame, &ray);
+}
+
+/* Shaded colour of the closest hit along *ray; its hit record in *hit. */
+RT_FN unsigned int render_ray(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
+                              RT_CONST const RtMaterial *materials, const Ray *ray, Hit *hit)
+{
+    *hit = closest_hit(RT_SCENE_ARGS, frame, ray);
+    return pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, ray, hit));
 }
 
 /* Shaded colour of pixel (x, y); its hit record in *hit. */
@@ -37,10 +37,49 @@ RT_FN unsigned int render_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
                                 int x, int y, Hit *hit)
 {
     Ray ray = camera_ray(frame, x, y);
-    *hit = make_miss(ray.tmax);
-    trace_closest(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, hit);
-    refine_hit_t(RT_SCENE_ARGS, &ray, hit);
-    return pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &ray, hit));
+    return render_ray(RT_SCENE_ARGS, frame, lights, materials, &ray, hit);
+}
+
+/* Bits 0, 2, 4, ... of v packed together (Morton decode). */
+RT_FN int compact_even_bits(int v)
+{
+    v &= 0x55555555;
+    v = (v | (v >> 1)) & 0x33333333;
+    v = (v | (v >> 2)) & 0x0f0f0f0f;
+    v = (v | (v >> 4)) & 0x00ff00ff;
+    return (v | (v >> 8)) & 0x0000ffff;
+}
+
+RT_FN int log2_int(int n)
+{
+    int k = 0;
+    while ((2 << k) <= n)
+        ++k;
+    return k;
+}
+
+/* Pixel of thread (tx, ty) in block (bx, by) of bw x bh threads: which rays share a warp (§4.1).
+ * RT_ORDER_ROWS: a warp takes a row segment of the block. RT_ORDER_MORTON: thread t = ty * bw + tx
+ * takes the t-th pixel of the block's Z curve, so 32 threads cover an 8x4 tile; bw and bh must be
+ * powers of two (the loader checks), the longer side taking the curve's high bits. */
+RT_FN void block_pixel(int bx, int by, int bw, int bh, int tx, int ty, int *x, int *y)
+{
+#if RT_RAY_ORDER == RT_ORDER_MORTON
+    int t = ty * bw + tx;
+    int lw = log2_int(bw), lh = log2_int(bh);
+    int m = lw < lh ? lw : lh;
+    int low = t & ((1 << (2 * m)) - 1), high = t >> (2 * m);
+    int mx = compact_even_bits(low), my = compact_even_bits(low >> 1);
+    if (lw > lh)
+        mx |= high << m;
+    else
+        my |= high << m;
+    *x = bx * bw + mx;
+    *y = by * bh + my;
+#else
+    *x = bx * bw + tx;
+    *y = by * bh + ty;
+#endif
 }
 
 /* The host reads a hit as float4 (t, u, v, tri bits); a miss has tri = -1 and t = tmax. */
