@@ -23,14 +23,16 @@ def require_scene_file(relpath: str):
 
 def _available_backends() -> list[tuple[str, str | None]]:
     """(backend, device) pairs to run backend tests on: every OpenCL device (PoCL in CI), and CUDA
-    when a driver works. $RTLAB_TEST_BACKENDS narrows it, e.g. 'opencl' or 'cuda'."""
+    when a driver works. $RTLAB_TEST_BACKENDS narrows it: comma-separated 'backend' or
+    'backend:device-name-part', e.g. 'cuda,opencl:NVIDIA'."""
     from rtlab.backends import backend_status
-    want = os.environ.get("RTLAB_TEST_BACKENDS")
+    want = [w.split(":", 1) for w in os.environ.get("RTLAB_TEST_BACKENDS", "").split(",") if w]
     out = []
     for row in backend_status():
         if not row["ok"]:
             continue
-        if want and row["backend"] not in want.split(","):
+        if want and not any(w[0] == row["backend"] and (len(w) == 1 or w[1].lower() in row["device"].lower())
+                            for w in want):
             continue
         out.append((row["backend"], row["id"]))
     return out
