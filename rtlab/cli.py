@@ -421,6 +421,141 @@ def bench_traversal(scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conf
             f.write(table4_markdown(rows, cmd) + "\n")
 
 
+def _command(name: str) -> str:
+    """The command line that made a table, for the markdown beside it."""
+    return f"rtlab bench {name} " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else f"rtlab bench {name}"
+
+
+def _blocks(text: str) -> list[tuple[int, int]]:
+    try:
+        return [tuple(int(v) for v in b.lower().split("x")) for b in text.split(",") if b]
+    except ValueError:
+        raise RtlabError(f"block shapes look like 2x32,4x32, got '{text}'") from None
+
+
+@bench_app.command("memory")
+def bench_memory_cmd(scenes: str = typer.Option("bunny,dragon", help="comma-separated presets"),
+                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                     device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                     size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                     views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill"),
+                     repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                     check: bool = typer.Option(True, help="error against the float64 reference"),
+                     placements: str = typer.Option("global,texture,const-global,ray-shared,ray-indexed,paper",
+                                                    help="placements (rtlab.benches.memory.PLACEMENTS)"),
+                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """Memory placement (§3.1.1, lab step 01): textures vs global loads, constants in constant vs global
+    memory, the ray in registers / shared memory / indexed arrays; time, registers, occupancy, error."""
+    from .backends import get_backend
+    from .benches.memory import PLACEMENTS, bench_memory, compiler_report, diff_text, memory_markdown
+    names = [n for n in placements.split(",") if n]
+    unknown = [n for n in names if n not in PLACEMENTS]
+    if unknown:
+        raise RtlabError(f"unknown placement(s) {', '.join(unknown)}; choose from {', '.join(PLACEMENTS)}")
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    rows = []
+    for scene, view in _bench_scenes(scenes, views, size):
+        _tree(scene)
+        for be in bes:
+            with console.status(f"memory placements on {scene.name}/{view}, {be.name}...") as status:
+                rows += bench_memory(scene, be, names, repeats, check, view, progress=lambda m: status.update(m))
+    table = Table(title=f"memory placement (§3.1.1), {size}x{size}")
+    for col in ("scene", "backend", "placement", "ms", "Mrays/s", "regs", "occ.", "nvcc regs/stack/spills/smem",
+                "differs from global", "error vs float64"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        b, n = r.bench, r.nvcc
+        table.add_row(b.scene, b.backend, r.placement, f"{b.median_ms:.3f}", f"{b.mrays:,.1f}", str(b.registers or "-"),
+                      f"{b.occupancy:.0%}" if b.occupancy is not None else "-",
+                      f"{n['registers']}/{n['local_bytes']}/{n['spill_bytes']}/{n['shared_bytes']}" if n else "-",
+                      diff_text(r), b.error_text())
+    console.print(table)
+    report = compiler_report()
+    if report:
+        from .benches.memory import compiler_report_markdown
+        console.print(compiler_report_markdown(report))
+    if md:
+        with open(md, "a") as f:
+            f.write(memory_markdown(rows, _command("memory"), report) + "\n")
+
+
+@bench_app.command("launch")
+def bench_launch_cmd(scene: str = typer.Option("bunny", help="preset"),
+                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                     device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                     size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                     repeats: int = typer.Option(10, help="timed launches; the median is reported"),
+                     check: bool = typer.Option(True, help="error of the default launch against the float64 reference"),
+                     blocks: Optional[str] = typer.Option(None, help="block shapes XxY (default: Fig. 4's set)"),
+                     orders: str = typer.Option("rows,morton", help="ray orders within a block"),
+                     traversals: str = typer.Option("stack,restart,shortstack,ropes", help="Fig. 5 traversals"),
+                     caps: str = typer.Option("0,64,48,40,32,24", help="Fig. 5 register caps (0: none)"),
+                     figures: str = typer.Option("4,5", help="which figures: 4, 5 or 4,5"),
+                     out: Path = typer.Option(Path("."), help="folder for fig4.png / fig5.png"),
+                     md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
+    """Block size (Fig. 4) with pixel vs Morton ray order, and registers/occupancy (Fig. 5): register caps
+    and (CUDA) occupancy held down by unused shared memory. Every launch checked against the default's hits."""
+    from .backends import get_backend
+    from .benches.launch import (FIG4_BLOCKS, block_sweep, launch_markdown, occupancy_sweep, plot_fig4, plot_fig5,
+                                 register_sweep)
+    shapes = _blocks(blocks) if blocks else list(FIG4_BLOCKS)
+    cap_list = [int(c) for c in caps.split(",") if c]
+    figs = {f.strip() for f in figures.split(",")}
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    sc = _load_scene(scene, size)
+    _tree(sc)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for be in bes:
+        with console.status(f"launch shapes on {be.name}...") as status:
+            step = lambda m: status.update(m)
+            if "4" in figs:
+                rows += block_sweep(sc, be, shapes, tuple(o for o in orders.split(",") if o), repeats, check,
+                                    progress=step)
+            if "5" in figs:
+                rows += register_sweep(sc, be, tuple(t for t in traversals.split(",") if t), tuple(cap_list), repeats,
+                                       check, progress=step)
+                rows += occupancy_sweep(sc, be, repeats=repeats, progress=step)
+    text = launch_markdown(rows, _command("launch"))
+    console.print(text)
+    if "4" in figs:
+        plot_fig4(rows, out / "fig4.png")
+    if "5" in figs:
+        plot_fig5(rows, out / "fig5.png")
+    console.print(f"plots in {out}")
+    if md:
+        with open(md, "a") as f:
+            f.write(text + "\n")
+
+
+@bench_app.command("paper")
+def bench_paper_cmd(backend: Optional[str] = typer.Option(None, help="opencl, cuda or auto ($RTLAB_BACKEND)"),
+                    device: Optional[str] = typer.Option(None, help="device name substring or index ($RTLAB_DEVICE)"),
+                    out: Path = typer.Option(Path("paper-results"), help="folder for markdown, CSV and PNG plots"),
+                    size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                    scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
+                    sections: str = typer.Option("table2,table3,table4,table5,memory,fig4,fig5",
+                                                 help="sections to run, in this order"),
+                    repeats: int = typer.Option(10, help="timed launches per variant; the median is reported"),
+                    check: bool = typer.Option(True, help="error against the float64 reference"),
+                    budget_s: Optional[float] = typer.Option(None, help="start no section after this many seconds"),
+                    force: bool = typer.Option(False, help="rerun sections finished by an earlier run")):
+    """The paper's evaluation on the current device: Tables 2-5, Figs. 4-5 and §3.1.1's memory placement,
+    as markdown + CSV + PNG plots in OUT/<backend>-<device>/ (sections finished before are kept)."""
+    from .backends import get_backend
+    from .benches.paper import SECTIONS, run_paper
+    names = [s for s in sections.split(",") if s]
+    unknown = [s for s in names if s not in SECTIONS]
+    if unknown:
+        raise RtlabError(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    be = get_backend(backend, device)
+    scene_names = [s for s in scenes.split(",") if s]
+    for name in scene_names:
+        _tree(_load_scene(name, size))
+    d = run_paper(be, out, scene_names, size, repeats, names, check, budget_s, force, _command("paper"), console)
+    console.print(f"wrote {d / 'paper.md'}, {d / 'paper.csv'} and plots in {d}")
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     try:
         app(args=argv, standalone_mode=False)

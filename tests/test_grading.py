@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtlab.labs import LabError, grade, load_config, splice_regions, stale_template_files, strip_regions
+from rtlab.labs import LabError, grade, lab_names, load_config, splice_regions, stale_template_files, strip_regions
 from rtlab.labs.checks import check_camera_rays, speed_score
 from rtlab.labs.grader import build_trees, compile_message, find_submitted_file, template_text
 from rtlab.labs.regions import find_regions, stubbed_functions
@@ -41,7 +41,7 @@ EXPECTED = {
     # Speed against itself: a ratio near 1; a busy shared machine may cost a few points
     "reference": (ALL_TESTS, {t: ("passed", r"") for t in ALL_TESTS}
                   | {"speed_bunny": ("passed|partial", r"alternating on the same device: [\d.]+x the reference")}),
-    "template": (ALL_TESTS, {
+    "template": (["compile", "camera_rays", "trace_random_rays", "render_default", "speed_bunny"], {
         "compile": ("passed", r"compiles"),
         "camera_rays": ("failed", r"100\.0 % of pixels get a wrong direction .* expected \(.*\), got \(0, 0, 1\)"),
         **{t: ("failed", r"hit another triangle .*expected triangle \d+ at t = [\d.]+, got a miss") for t in TRAVERSAL_TESTS},
@@ -159,8 +159,36 @@ def test_cli_writes_results_when_it_cannot_grade(tmp_path):
     assert all("not graded" in t["output"] for t in data["tests"])
 
 
-def test_committed_template_is_current():
-    assert stale_template_files(STEP) == [], f"run `rtlab lab template {STEP}`"
+@pytest.mark.parametrize("step", lab_names())
+def test_committed_template_is_current(step):
+    assert stale_template_files(step) == [], f"run `rtlab lab template {step}`"
+
+
+# The other lab steps: the reference passes and the template fails one test of each student
+# function family (RTLAB_GRADE_ALL=1: every test, and the reference must get full marks).
+OTHER_LABS = {"02_intersect": ["loop_plucker"], "03_traversal": ["trace_restart"], "04_shadows": ["one_pass"],
+              "05_kernel_tree": ["two_bounces"]}
+
+
+@pytest.mark.parametrize("step", sorted(OTHER_LABS))
+def test_other_lab_reference_passes_and_template_fails(step, tmp_path):
+    if step not in lab_names():
+        pytest.skip(f"lab {step} has no grading config")
+    config = load_config(step)
+    tests = None if GRADE_ALL else OTHER_LABS[step]
+    ref = grade(step, PROJECT_DIR, tests=tests)
+    assert ref.score == ref.max_score, [(t.name, t.status, t.output) for t in ref.tests if not t.passed]
+    if GRADE_ALL:
+        assert ref.max_score == config.max_score
+    from rtlab.labs import write_template
+    write_template(step, tmp_path)         # as generated now (the committed one is checked above)
+    tmpl = grade(step, tmp_path, tests=tests)
+    for t in tmpl.tests:
+        if t.name == "compile":
+            assert t.passed, t.output
+        else:
+            assert t.status in ("failed", "skipped") and t.score == 0, (t.name, t.status, t.output)
+    assert any("template's stub" in n for n in tmpl.notes)
 
 
 def test_template_stubs_each_student_function_and_keeps_the_rest():

@@ -19,7 +19,7 @@ import trimesh
 from numba import njit
 
 from rtlab.accel.cache import cache_key, load_or_build_kdtree
-from rtlab.accel.kdtree import LEAF_TAG, KdBuildParams, KdTree, build_kdtree, kd_stats
+from rtlab.accel.kdtree import KdBuildParams, KdTree, build_kdtree, kd_stats
 
 from .conftest import require_scene_file
 
@@ -52,28 +52,50 @@ def _cells(nodes, split, bounds):
 
 
 @njit(cache=True)
+def _vec(a, i):
+    return a[i, 0], a[i, 1], a[i, 2]
+
+
+@njit(cache=True)
+def _sub(a, b):
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+@njit(cache=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _cross(a, b):
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True)
+def _separated(axis, v0, v1, v2, h):
+    """Whether axis separates the triangle (v0, v1, v2, relative to the box centre) from a box
+    of half extents h."""
+    p0, p1, p2 = _dot(axis, v0), _dot(axis, v1), _dot(axis, v2)
+    r = h[0] * abs(axis[0]) + h[1] * abs(axis[1]) + h[2] * abs(axis[2])
+    return min(p0, p1, p2) > r or max(p0, p1, p2) < -r
+
+
+@njit(cache=True)
 def _tri_box_overlap(tri, lo, hi):
-    """Closed separating-axis test of a triangle (3, 3) against a box (Akenine-Moller 2001)."""
-    c = (lo + hi) * 0.5
-    h = (hi - lo) * 0.5
-    v = tri - c
-    for k in range(3):
-        if min(v[0, k], v[1, k], v[2, k]) > h[k] or max(v[0, k], v[1, k], v[2, k]) < -h[k]:
+    """Closed separating-axis test of a triangle (3, 3) against a box (Akenine-Moller 2001):
+    3 box normals, the triangle normal, 9 edge x box-axis cross products."""
+    c = ((lo[0] + hi[0]) * 0.5, (lo[1] + hi[1]) * 0.5, (lo[2] + hi[2]) * 0.5)
+    h = ((hi[0] - lo[0]) * 0.5, (hi[1] - lo[1]) * 0.5, (hi[2] - lo[2]) * 0.5)
+    v0, v1, v2 = _sub(_vec(tri, 0), c), _sub(_vec(tri, 1), c), _sub(_vec(tri, 2), c)
+    for axis in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+        if _separated(axis, v0, v1, v2, h):
             return False
-    e = np.empty((3, 3))
-    for i in range(3):
-        e[i] = v[(i + 1) % 3] - v[i]
-    nrm = np.cross(e[0], e[1])
-    if abs(np.dot(nrm, v[0])) > np.dot(h, np.abs(nrm)):
+    edges = (_sub(v1, v0), _sub(v2, v1), _sub(v0, v2))
+    if _separated(_cross(edges[0], edges[1]), v0, v1, v2, h):
         return False
-    for i in range(3):
-        for k in range(3):
-            u = np.zeros(3)
-            u[k] = 1.0
-            ax = np.cross(u, e[i])
-            p0, p1, p2 = np.dot(ax, v[0]), np.dot(ax, v[1]), np.dot(ax, v[2])
-            r = np.dot(h, np.abs(ax))
-            if min(p0, p1, p2) > r or max(p0, p1, p2) < -r:
+    for e in edges:
+        for u in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+            if _separated(_cross(u, e), v0, v1, v2, h):
                 return False
     return True
 
@@ -123,21 +145,24 @@ def _missing_refs(nodes, objects, cells, tris, usable, tol):
 
 @njit(cache=True)
 def _moller_trumbore(o, d, tri):
-    e1 = tri[1] - tri[0]
-    e2 = tri[2] - tri[0]
-    p = np.cross(d, e2)
-    det = np.dot(e1, p)
+    """Hit distance t > 0 of the ray o + t d on a triangle (3, 3), or inf (Moller & Trumbore 1997;
+    edges and vertices count as hits)."""
+    v0 = _vec(tri, 0)
+    e1, e2 = _sub(_vec(tri, 1), v0), _sub(_vec(tri, 2), v0)
+    dd = (d[0], d[1], d[2])
+    p = _cross(dd, e2)
+    det = _dot(e1, p)
     if det == 0.0:
         return np.inf
-    s = o - tri[0]
-    u = np.dot(s, p) / det
+    s = _sub((o[0], o[1], o[2]), v0)
+    u = _dot(s, p) / det
     if u < 0.0 or u > 1.0:
         return np.inf
-    q = np.cross(s, e1)
-    v = np.dot(d, q) / det
+    q = _cross(s, e1)
+    v = _dot(dd, q) / det
     if v < 0.0 or u + v > 1.0:
         return np.inf
-    t = np.dot(e2, q) / det
+    t = _dot(e2, q) / det
     return t if t > 0.0 else np.inf
 
 
@@ -355,7 +380,7 @@ def _check_rays(tree: KdTree, tris, usable, rng, n_rays):
                            tree.bounds.astype(np.float64), tree.depth, origins, dirs, ok_tris)
     hits = np.isfinite(brute)
     assert hits.mean() > 0.1, "too few rays hit: the test would prove little"
-    bad = (kd != brute) & ~(np.abs(kd - brute) <= T_RTOL * np.abs(brute))
+    bad = ~np.isclose(kd, brute, rtol=T_RTOL, atol=0.0)
     assert not bad.any(), (f"{bad.sum()} of {len(bad)} rays differ, e.g. ray {np.flatnonzero(bad)[0]}:"
                            f" kd {kd[bad][0]!r} brute {brute[bad][0]!r}")
 

@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import BackendError, KernelBuildError
 from ..occupancy import SmLimits, cuda_occupancy
 from ..paths import SHARED_KERNEL_DIR
-from .base import Backend, KernelResources, Program, round_up
+from .base import Backend, KernelResources, Program, Texture, round_up
 
 
 def _pycuda():
@@ -49,25 +49,33 @@ class CudaProgram(Program):
         return self._functions[name]
 
     def set_constant(self, name, array):
+        """Upload to ``c_<name>``; a module that declares no such symbol does not read it: skipped."""
         drv = self.backend.drv
         data = np.ascontiguousarray(array).tobytes()
         if self._constants.get(name) == data:
             return
-        ptr, size = self._module.get_global(f"c_{name}")
+        try:
+            ptr, size = self._module.get_global(f"c_{name}")
+        except drv.LogicError:
+            self._constants[name] = data
+            return
         if len(data) > size:
             raise KernelBuildError(f"constant c_{name} holds {size} bytes, {len(data)} given "
                                    f"(raise RT_MAX_* for this scene)")
         drv.memcpy_htod(ptr, np.frombuffer(data, np.uint8))
         self._constants[name] = data
 
-    def launch(self, kernel, global_size, block, args, constants=()):
+    def launch(self, kernel, global_size, block, args, constants=(), shared_bytes=0):
         drv = self.backend.drv
         block3 = tuple(block) + (1,) * (3 - len(block))
         grid = tuple(round_up(g, b) // b for g, b in zip(global_size, block))
         grid3 = grid + (1,) * (3 - len(grid))
+        f = self.function(kernel)
+        if shared_bytes > 48 * 1024:  # beyond 48 KiB a kernel must opt in
+            f.set_attribute(drv.function_attribute.MAX_DYNAMIC_SHARED_SIZE_BYTES, int(shared_bytes))
         start, end = drv.Event(), drv.Event()
         start.record()
-        self.function(kernel)(*args, block=block3, grid=grid3[:2] if grid3[2] == 1 else grid3)
+        f(*args, block=block3, grid=grid3[:2] if grid3[2] == 1 else grid3, shared=int(shared_bytes))
         end.record()
         end.synchronize()
         return end.time_since(start)
@@ -136,24 +144,27 @@ class CudaBackend(Backend):
     def is_gpu(self) -> bool:
         return True
 
-    def compile(self, path, defines):
+    def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        key = (str(path), tuple(sorted(defines.items())))
+        key = (str(path), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
         text = Path(path).read_text()
         source = f'#line 1 "{path}"\n{text}'
-        options = [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)
         extra = os.environ.get("RTLAB_NVCC_OPTIONS")
         if extra:
-            options += extra.split()
+            flags += extra.split()
         try:
-            module = SourceModule(source, options=options, include_dirs=[str(SHARED_KERNEL_DIR), str(Path(path).parent)],
+            module = SourceModule(source, options=flags, include_dirs=[str(SHARED_KERNEL_DIR), str(Path(path).parent)],
                                   no_extern_c=True, arch=self.arch)
         except drv.CompileError as e:
             from .opencl import format_build_error
-            raise KernelBuildError(format_build_error(path, defines, e.stderr or str(e))) from None
+            log = e.stderr or str(e)
+            if isinstance(log, bytes):
+                log = log.decode(errors="replace")
+            raise KernelBuildError(format_build_error(path, defines, log)) from None
         prog = CudaProgram(self, Path(path), defines, module)
         self._programs[key] = prog
         return prog
@@ -166,6 +177,22 @@ class CudaBackend(Backend):
 
     def empty(self, nbytes):
         return self.drv.mem_alloc(max(int(nbytes), 4))
+
+    def texture(self, buffer, dtype, channels, count):
+        """A texture object over ``buffer`` (linear memory, point sampling, integers read as
+        integers), passed to kernels as a 64-bit cudaTextureObject_t. pycuda has no texture-object
+        API (DESIGN.md, known pitfalls): the driver's cuTexObjectCreate makes it, through cuda-python
+        when installed, else through ctypes on libcuda.so.1."""
+        from .cuda_texture import create_texture_object
+        dtype = np.dtype(dtype)
+        count = max(int(count), 1)
+        ptr = int(buffer)
+        align = self.cuda_device.get_attribute(self.drv.device_attribute.TEXTURE_ALIGNMENT)
+        if ptr % align:
+            raise BackendError(f"device buffer at {ptr:#x} is not aligned to {align} bytes, "
+                               "which a linear texture needs")
+        handle, destroy = create_texture_object(ptr, dtype, channels, count)
+        return Texture(np.uint64(handle), buffer, dtype, channels, count, release=destroy)
 
     def fill(self, buffer, array):
         self.drv.memcpy_htod(buffer, np.ascontiguousarray(array))

@@ -38,7 +38,8 @@ typedef unsigned long long kd_ties_t;
 typedef ulong kd_ties_t;
 #endif
 /* One bit per tie on a root-to-leaf path: at most the tree depth, RT_STACK_SIZE - 1 */
-#if RT_STACK_SIZE > 64 && (RT_TRAVERSAL == RT_TRAVERSAL_RESTART || RT_TRAVERSAL == RT_TRAVERSAL_SHORTSTACK)
+#if RT_STACK_SIZE > 64 && (RT_TRAVERSAL == RT_TRAVERSAL_RESTART || RT_TRAVERSAL == RT_TRAVERSAL_SHORTSTACK \
+                           || RT_TRAVERSAL == RT_TRAVERSAL_ROPES)
 #error "the stackless kd traversals keep one bit per tree level in 64 bits: tree deeper than 63 levels"
 #endif
 

@@ -3,8 +3,15 @@
  * side whose box covers that face (rtlab/accel/ropes.py builds them, pushed down the tree as far
  * as the face stays covered: Popov's rope optimisation). After a leaf the ray leaves through the
  * face of its exit distance, follows that face's rope and descends from there to the leaf holding
- * the exit point. Rays lying in split planes take the side passes of rt_kd_restart.h; a flat cell
- * (touched at one distance only) is entered and left through its faces like any other cell.
+ * the exit point. A flat cell (touched at one distance only) is entered and left through its faces
+ * like any other cell.
+ *
+ * Hazard - leaving through an edge or a corner: the exit point lies in cells across several faces
+ * and one rope reaches only some of them (a diagonal cell touched only at the point is skipped, and
+ * with it a triangle through that point: rays through mesh vertices leak). There, and where the ray
+ * starts, the leaves touching that distance come from the root in tree order as in kd-restart
+ * (rt_kd_restart.h, KdSegment); the last of them goes on by rope. Rays lying in split planes take
+ * the side passes of rt_kd_restart.h.
  *
  * Leaf record in node_data, 4 float4 = 64 B per leaf (sync with rtlab/accel/ropes.py). In the rope
  * tree a leaf node's y is its record index instead of its first object (the only change to the kd
@@ -44,34 +51,30 @@ RT_FN int2 kd_leaf_objects(int word, int first)
     return leaf;
 }
 
-/* Distance at which the ray leaves the box [lo, hi], and the face it leaves through as a rope
- * slot (2 axis for the lower face, 2 axis + 1 for the upper). Axes along which the ray does not
- * move are never left (their slab distance would be 0 * inf = NaN on the face). */
-RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face)
+/* Whether exit distance t_axis ties with the exit distance t: exactly, or within the rounding bound
+ * of two plane distances with RT_CONSERVATIVE (rt_intersect.h) */
+RT_FN int exit_ties(float t_axis, float t)
 {
-    float t = RT_INF;
-    *face = -1;
-    if (ray->d.x != 0.0f) {
-        float tx = ((ray->d.x > 0.0f ? hi.x : lo.x) - ray->o.x) * ray->inv_d.x;
-        if (tx < t) {
-            t = tx;
-            *face = ray->d.x > 0.0f ? 1 : 0;
-        }
-    }
-    if (ray->d.y != 0.0f) {
-        float ty = ((ray->d.y > 0.0f ? hi.y : lo.y) - ray->o.y) * ray->inv_d.y;
-        if (ty < t) {
-            t = ty;
-            *face = ray->d.y > 0.0f ? 3 : 2;
-        }
-    }
-    if (ray->d.z != 0.0f) {
-        float tz = ((ray->d.z > 0.0f ? hi.z : lo.z) - ray->o.z) * ray->inv_d.z;
-        if (tz < t) {
-            t = tz;
-            *face = ray->d.z > 0.0f ? 5 : 4;
-        }
-    }
+#if RT_CONSERVATIVE
+    return t_axis <= t + rt_abs(t) * (2.0f * RT_T_PAD);
+#else
+    return t_axis == t;
+#endif
+}
+
+/* Distance at which the ray leaves the box [lo, hi], the face it leaves through as a rope slot
+ * (2 axis for the lower face, 2 axis + 1 for the upper), and in *corner whether it leaves through
+ * an edge or corner (another face at the same distance). Axes along which the ray does not move
+ * are never left (their slab distance would be 0 * inf = NaN on the face). */
+RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face, int *corner)
+{
+    float tx = ray->d.x != 0.0f ? ((ray->d.x > 0.0f ? hi.x : lo.x) - ray->o.x) * ray->inv_d.x : RT_INF;
+    float ty = ray->d.y != 0.0f ? ((ray->d.y > 0.0f ? hi.y : lo.y) - ray->o.y) * ray->inv_d.y : RT_INF;
+    float tz = ray->d.z != 0.0f ? ((ray->d.z > 0.0f ? hi.z : lo.z) - ray->o.z) * ray->inv_d.z : RT_INF;
+    float t = rt_min(tx, rt_min(ty, tz));
+    int axis = tx == t ? 0 : (ty == t ? 1 : 2);
+    *face = 2 * axis + (get3(ray->d, axis) > 0.0f);
+    *corner = exit_ties(tx, t) + exit_ties(ty, t) + exit_ties(tz, t) > 1;
     return t;
 }
 

@@ -6,8 +6,8 @@
  * children it needs and for its nearer child; between two barriers thread 0 takes the child most
  * rays meet first, pushes the other when some ray needs it, or pops. The stack holds a node and
  * its cell box (shared by all rays): on a pop every ray clips itself to the popped cell, so no
- * ray needs a stack of its own. Rays that do not need a node just skip it (they keep voting
- * nothing); at a leaf each ray that needs it tests the leaf's triangles against its own ray.
+ * ray needs a stack of its own. Rays that do not need a node just skip it (and cast no vote); at
+ * a leaf each ray that needs it tests the leaf's triangles against its own ray.
  * Every thread of the block must call the traversal (invalid ones with valid = 0): it contains
  * barriers. The paper found the packet slow on CUDA (15.8 vs 43.2 fps): two barriers per node.
  *
@@ -112,6 +112,7 @@ RT_FN Hit trace_one_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
     Hit hit = make_miss(ray.tmax);
     traverse_kd_packet(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, valid, &hit, 0, sh, lane);
+    refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
     return hit;
 }
 
@@ -124,6 +125,7 @@ RT_FN unsigned int render_pixel_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *
     Ray ray = camera_ray(frame, x, y);
     *hit = make_miss(ray.tmax);
     traverse_kd_packet(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &ray, valid, hit, 0, sh, lane);
+    refine_hit_t(RT_SCENE_ARGS, &ray, hit);
     return pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &ray, hit));
 }
 
