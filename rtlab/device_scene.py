@@ -33,6 +33,11 @@ class AccelArrays:
     stack_size: int
 
 
+# Element type and channels of each RT_SCENE_PARAMS buffer, in order (kernels/shared/rt_memory.h)
+SCENE_ELEMENTS = ((np.int32, 2), (np.float32, 4), (np.int32, 1), (np.float32, 4), (np.float32, 4), (np.float32, 4),
+                  (np.int32, 1))
+
+
 def kd_accel(scene, tree) -> AccelArrays:
     return AccelArrays(tree.nodes, DUMMY_F4, tree.objects, tree.bounds, tree.depth + 1)
 
@@ -123,16 +128,19 @@ class DeviceScene:
     buffers: dict                                   # per-scene buffers: tris, normals, tri_materials
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [device buffers])
     tri_data: dict = field(default_factory=dict)    # intersection test -> device buffer
+    textures: dict = field(default_factory=dict)    # id(buffer) -> (buffer, Texture): texture placement
+    counts: dict = field(default_factory=dict)      # id(buffer) -> elements (texture extents)
 
     @classmethod
     def upload(cls, backend, scene: Scene, tree: KdTree | None = None) -> "DeviceScene":
         tree = tree if tree is not None else scene_kdtree(scene)
-        buffers = {
-            "tris": backend.to_device(triangle_corners(scene)),
-            "normals": backend.to_device(triangle_normals(scene)),
-            "tri_materials": backend.to_device(np.ascontiguousarray(scene.material_ids, np.int32)),
-        }
-        return cls(backend, scene, tree, buffers)
+        arrays = {"tris": triangle_corners(scene), "normals": triangle_normals(scene),
+                  "tri_materials": np.ascontiguousarray(scene.material_ids, np.int32)}
+        buffers = {name: backend.to_device(a) for name, a in arrays.items()}
+        ds = cls(backend, scene, tree, buffers)
+        for name, a in arrays.items():
+            ds.counts[id(buffers[name])] = len(a)
+        return ds
 
     def _accel(self, traversal: str):
         family = traversal if traversal in ACCEL_BUILDERS else "kd"
@@ -141,25 +149,40 @@ class DeviceScene:
             objects = arrays.objects if arrays.objects.size else np.zeros(1, np.int32)
             bufs = [self.backend.to_device(arrays.nodes), self.backend.to_device(arrays.node_data),
                     self.backend.to_device(objects)]
+            for buf, a in zip(bufs, (arrays.nodes, arrays.node_data, objects)):
+                self.counts[id(buf)] = len(a)
             self.accel[family] = (arrays, bufs)
         return self.accel[family]
 
     def _tri_data(self, intersection: str):
         if intersection not in self.tri_data:
             builder = TRI_DATA_BUILDERS.get(intersection)
-            data = builder(self.scene) if builder else DUMMY_F4
-            self.tri_data[intersection] = self.backend.to_device(np.ascontiguousarray(data, np.float32))
+            data = np.ascontiguousarray(builder(self.scene) if builder else DUMMY_F4, np.float32)
+            self.tri_data[intersection] = self.backend.to_device(data)
+            self.counts[id(self.tri_data[intersection])] = len(data)
         return self.tri_data[intersection]
 
     def features(self, variant) -> SceneFeatures:
         return scene_features(self.scene, self._accel(variant.traversal)[0].stack_size)
 
     def scene_args(self, variant) -> list:
-        """Buffers in RT_SCENE_PARAMS order for this variant."""
+        """Buffers in RT_SCENE_PARAMS order for this variant; with the texture placement, textures
+        (CUDA) or images (OpenCL) over them, made on first use and kept."""
         _, (nodes, node_data, objects) = self._accel(variant.traversal)
         b = self.buffers
-        return [nodes, node_data, objects, b["tris"], self._tri_data(variant.intersection), b["normals"],
+        args = [nodes, node_data, objects, b["tris"], self._tri_data(variant.intersection), b["normals"],
                 b["tri_materials"]]
+        if variant.node_memory == "texture":
+            return [self.texture(buf, dtype, channels).arg for buf, (dtype, channels) in zip(args, SCENE_ELEMENTS)]
+        return args
+
+    def texture(self, buffer, dtype, channels):
+        """The texture/image over one of this scene's buffers (made once)."""
+        entry = self.textures.get(id(buffer))
+        if entry is None or entry[0] is not buffer:
+            entry = (buffer, self.backend.texture(buffer, dtype, channels, self.counts[id(buffer)]))
+            self.textures[id(buffer)] = entry
+        return entry[1]
 
     def set_constants(self, program, camera: Camera | None, variant) -> None:
         bounds = self._accel(variant.traversal)[0].bounds

@@ -20,7 +20,7 @@ TRAVERSALS = list(kernels.TRAVERSALS)
 # family 1 (ray 3216) and 1 of 5000 in family 2 (ray 742) here; stack, packet, kd-restart,
 # short-stack and BVH leak none. The fix belongs in the traversal. Strict: the test fails once ropes is fixed,
 # so that this entry is removed.
-KNOWN_LEAKING = {"ropes"}
+KNOWN_LEAKING = set()
 
 # Leak rates (leaks / rays, worst case and traversal of a family) measured on PoCL 3.1 on
 # 2026-11-22: family 1 Möller 0.150, Wald 0.030, Plücker 0.004; family 2 Möller 0.107, Wald 0.038,

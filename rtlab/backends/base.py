@@ -55,13 +55,36 @@ class Program(ABC):
 
     @abstractmethod
     def launch(self, kernel: str, global_size: tuple[int, ...], block: tuple[int, ...],
-               args: list, constants: tuple[str, ...] = ()) -> float:
+               args: list, constants: tuple[str, ...] = (), shared_bytes: int = 0) -> float:
         """Run ``kernel`` over ``global_size`` work items in blocks of ``block``; returns device ms.
-        ``global_size`` is rounded up to whole blocks; kernels guard their own bounds."""
+        ``global_size`` is rounded up to whole blocks; kernels guard their own bounds.
+        ``shared_bytes`` of dynamic shared memory a block (CUDA only) hold occupancy down without
+        touching the kernel: the occupancy axis of the paper's Fig. 5."""
 
     @abstractmethod
     def resources(self, kernel: str, block: tuple[int, ...] | None = None) -> KernelResources:
         ...
+
+
+@dataclass
+class Texture:
+    """A read-only texture (CUDA texture object) or image (OpenCL image1d_buffer) over a device
+    buffer (§3.1.1). ``arg`` is what a kernel parameter of RT_SCENE_PARAMS takes; ``storage`` keeps
+    the memory it reads alive (the buffer itself, or a padded copy)."""
+    arg: object
+    storage: object
+    dtype: np.dtype
+    channels: int
+    count: int                    # elements of ``channels`` components each
+    release: object = None        # callable freeing the handle (CUDA texture objects), or None
+
+    def __del__(self):
+        if self.release is not None:
+            try:
+                self.release()
+            except Exception:  # interpreter shutdown: the driver may be gone already
+                pass
+            self.release = None
 
 
 class Backend(ABC):
@@ -72,7 +95,14 @@ class Backend(ABC):
     platform_name: str
 
     @abstractmethod
-    def compile(self, path: Path, defines: dict) -> Program: ...
+    def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> Program:
+        """Build ``path`` with ``-D`` defines plus compiler ``options`` (rtlab.kernels.build_options:
+        register caps); cached per (path, defines, options)."""
+
+    def texture(self, buffer, dtype, channels: int, count: int) -> Texture:
+        """A texture/image reading ``count`` elements of ``channels`` x ``dtype`` (int32 or float32;
+        1, 2 or 4 channels) from ``buffer`` in place; the Texture holds a reference to the buffer."""
+        raise NotImplementedError(f"{self.name} backend has no texture path")
 
     @abstractmethod
     def to_device(self, array: np.ndarray):

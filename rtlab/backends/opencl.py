@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import BackendError, KernelBuildError
 from ..paths import SHARED_KERNEL_DIR
-from .base import Backend, KernelResources, Program, round_up
+from .base import Backend, KernelResources, Program, Texture, round_up
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
              "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
@@ -93,8 +93,10 @@ class OpenCLProgram(Program):
             return
         self._constants[name] = (self.backend.to_device(data), data.tobytes())
 
-    def launch(self, kernel, global_size, block, args, constants=()):
+    def launch(self, kernel, global_size, block, args, constants=(), shared_bytes=0):
         cl = _cl()
+        if shared_bytes:
+            raise BackendError("dynamic local memory padding is CUDA only (the kernels take no __local argument)")
         gsize = tuple(round_up(g, b) for g, b in zip(global_size, block))
         try:
             const_bufs = [self._constants[c][0] for c in constants]
@@ -118,6 +120,17 @@ class OpenCLProgram(Program):
         m = re.search(rf"Function properties for {kernel}.*?Used (\d+) registers", self.build_log, re.S)
         if m:
             res.registers = int(m.group(1))
+        if self.backend.is_nvidia():
+            from ..nvcc import parse_ptxas
+            threads = int(np.prod(block)) if block else 128
+            ptxas = parse_ptxas(self.build_log, threads).get(kernel)
+            if ptxas is not None:
+                res.registers = res.registers or ptxas.registers
+                res.spill_bytes = ptxas.spill_bytes
+            limits = self.backend.sm_limits()
+            if res.registers and block and limits is not None:
+                from ..occupancy import cuda_occupancy
+                res.occupancy = cuda_occupancy(res.registers, threads, res.shared_bytes or 0, limits)
         return res
 
 
@@ -141,25 +154,38 @@ class OpenCLBackend(Backend):
     def is_nvidia(self) -> bool:
         return "NVIDIA" in self.platform.name
 
-    def compile(self, path: Path, defines: dict) -> OpenCLProgram:
+    def sm_limits(self):
+        """Per-multiprocessor limits for occupancy on an NVIDIA GPU of compute capability 9.0
+        (the H100); None elsewhere, where the CUDA occupancy rules do not apply."""
+        try:
+            cc = (self.device.compute_capability_major_nv, self.device.compute_capability_minor_nv)
+        except Exception:
+            return None
+        if cc != (9, 0):
+            return None
+        from ..occupancy import SM90
+        return SM90
+
+    def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> OpenCLProgram:
         cl = _cl()
-        key = (str(path), tuple(sorted(defines.items())))
+        key = (str(path), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
         text = Path(path).read_text()
         # '#line' makes compiler messages name the real file instead of '<source>'
         source = f'#line 1 "{path}"\n{text}'
-        options = [f"-I{SHARED_KERNEL_DIR}", f"-I{Path(path).parent}"]
-        options += [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        flags = [f"-I{SHARED_KERNEL_DIR}", f"-I{Path(path).parent}"]
+        flags += [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        flags += list(options)
         if self.is_nvidia():
-            options.append("-cl-nv-verbose")
+            flags.append("-cl-nv-verbose")
         extra = os.environ.get("RTLAB_CL_OPTIONS")
         if extra:
-            options += extra.split()
+            flags += extra.split()
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
-                program = cl.Program(self.context, source).build(options=options)
+                program = cl.Program(self.context, source).build(options=flags)
         except cl.RuntimeError as e:
             raise KernelBuildError(format_build_error(path, defines, str(e))) from None
         try:
@@ -180,6 +206,34 @@ class OpenCLBackend(Backend):
     def empty(self, nbytes):
         cl = _cl()
         return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 4))
+
+    def texture(self, buffer, dtype, channels, count):
+        """An image1d_buffer over ``buffer`` (rt_memory.h's fetch_*_image read it). Two-channel
+        int32 data (kd nodes) becomes an RGBA image of element pairs: PoCL has no RG format; an odd
+        count is padded in a copy of the buffer."""
+        cl = _cl()
+        dtype = np.dtype(dtype)
+        kinds = {np.dtype(np.float32): cl.channel_type.FLOAT, np.dtype(np.int32): cl.channel_type.SIGNED_INT32}
+        if dtype not in kinds or channels not in (1, 2, 4) or (channels == 2 and dtype != np.int32):
+            raise BackendError(f"no image layout for {channels} x {dtype} elements (float32 x 1/4, int32 x 1/2/4)")
+        if not self.device.image_support:
+            raise BackendError(f"{self.device_name} has no image support: the texture placement needs images")
+        count = max(int(count), 1)
+        storage = buffer
+        if channels == 2:
+            if count % 2:
+                storage = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=(count + 1) * 8)
+                cl.enqueue_fill_buffer(self.queue, storage, np.zeros(1, np.int32), 0, (count + 1) * 8)
+                cl.enqueue_copy(self.queue, storage, buffer, byte_count=count * 8).wait()
+            texels, order = (count + 1) // 2, cl.channel_order.RGBA
+        else:
+            texels, order = count, cl.channel_order.R if channels == 1 else cl.channel_order.RGBA
+        limit = self.device.image_max_buffer_size
+        if texels > limit:
+            raise BackendError(f"{texels:,} texels exceed {self.device_name}'s image buffer limit of {limit:,}")
+        image = cl.create_image(self.context, cl.mem_flags.READ_ONLY, cl.ImageFormat(order, kinds[dtype]),
+                                shape=(texels,), buffer=storage)
+        return Texture(image, storage, dtype, channels, count)
 
     def fill(self, buffer, array):
         _cl().enqueue_copy(self.queue, buffer, np.ascontiguousarray(array)).wait()
