@@ -15,11 +15,10 @@ from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness
 FAMILIES = sorted(FAMILY_NAMES)
 TRAVERSALS = list(kernels.TRAVERSALS)
 
-# Traversals that still let a few rays through with the watertight test and RT_CONSERVATIVE on
-# (PoCL, 2026-11-22): ropes (rt_kd_ropes.h), after its edge/corner-exit fix 1 of 5000 rays in
-# family 1 (ray 3216) and 1 of 5000 in family 2 (ray 742) here; stack, packet, kd-restart,
-# short-stack and BVH leak none. The fix belongs in the traversal. Strict: the test fails once ropes is fixed,
-# so that this entry is removed.
+# Traversals that still let rays through with the watertight test and RT_CONSERVATIVE on. Empty
+# since ropes walks from the root through the whole tie range of an edge/corner exit
+# (rt_kd_ropes.h); before that it leaked 41 of 10^5 (family 1) and 9 of 1.5 10^5 (family 2).
+# A traversal listed here is expected to leak (strict xfail), so the entry goes once it is fixed.
 KNOWN_LEAKING = set()
 
 # Leak rates (leaks / rays, worst case and traversal of a family) measured on PoCL 3.1 on
