@@ -10,7 +10,9 @@
  * and one rope reaches only some of them (a diagonal cell touched only at the point is skipped, and
  * with it a triangle through that point: rays through mesh vertices leak). There, and where the ray
  * starts, the leaves touching that distance come from the root in tree order as in kd-restart
- * (rt_kd_restart.h, KdSegment); the last of them goes on by rope. Rays lying in split planes take
+ * (rt_kd_restart.h, KdSegment), up to the last of the face distances tied with it (with
+ * RT_CONSERVATIVE they may differ by an ulp or so, and the cell across both faces is met at the
+ * later one); the first leaf beyond goes on by rope. Rays lying in split planes take
  * the side passes of rt_kd_restart.h.
  *
  * Leaf record in node_data, 4 float4 = 64 B per leaf (sync with rtlab/accel/ropes.py). In the rope
@@ -51,22 +53,25 @@ RT_FN int2 kd_leaf_objects(int word, int first)
     return leaf;
 }
 
-/* Whether exit distance t_axis ties with the exit distance t: exactly, or within the rounding bound
- * of two plane distances with RT_CONSERVATIVE (rt_intersect.h) */
-RT_FN int exit_ties(float t_axis, float t)
+/* Largest exit distance that ties with the exit distance t: t exactly, or with RT_CONSERVATIVE up
+ * to the rounding bound of two plane distances (rt_intersect.h) */
+RT_FN float exit_tie_bound(float t)
 {
 #if RT_CONSERVATIVE
-    return t_axis <= t + rt_abs(t) * (2.0f * RT_T_PAD);
+    return t + rt_abs(t) * (2.0f * RT_T_PAD);
 #else
-    return t_axis == t;
+    return t;
 #endif
 }
 
 /* Distance at which the ray leaves the box [lo, hi], the face it leaves through as a rope slot
- * (2 axis for the lower face, 2 axis + 1 for the upper), and in *corner whether it leaves through
- * an edge or corner (another face at the same distance). Axes along which the ray does not move
- * are never left (their slab distance would be 0 * inf = NaN on the face). */
-RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face, int *corner)
+ * (2 axis for the lower face, 2 axis + 1 for the upper), and in *t_corner, when it leaves through
+ * an edge or corner (another face's distance ties with it), the largest of the tied distances,
+ * else -inf. Axes along which the ray does not move are never left (their slab distance would be
+ * 0 * inf = NaN on the face).
+ * Hazard: tied distances need not be equal (tx one ulp before ty): the ray may cross the edge
+ * anywhere in [t, *t_corner], so the cells across it touch that range, not t alone. */
+RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face, float *t_corner)
 {
     float tx = ray->d.x != 0.0f ? ((ray->d.x > 0.0f ? hi.x : lo.x) - ray->o.x) * ray->inv_d.x : RT_INF;
     float ty = ray->d.y != 0.0f ? ((ray->d.y > 0.0f ? hi.y : lo.y) - ray->o.y) * ray->inv_d.y : RT_INF;
@@ -74,7 +79,10 @@ RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face, int *
     float t = rt_min(tx, rt_min(ty, tz));
     int axis = tx == t ? 0 : (ty == t ? 1 : 2);
     *face = 2 * axis + (get3(ray->d, axis) > 0.0f);
-    *corner = exit_ties(tx, t) + exit_ties(ty, t) + exit_ties(tz, t) > 1;
+    float bound = exit_tie_bound(t);
+    int tied = (tx <= bound) + (ty <= bound) + (tz <= bound);
+    float t_far = rt_max(tx <= bound ? tx : t, rt_max(ty <= bound ? ty : t, tz <= bound ? tz : t));
+    *t_corner = tied > 1 ? t_far : -RT_INF;
     return t;
 }
 
