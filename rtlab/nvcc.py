@@ -35,6 +35,21 @@ def nvcc_resources(path: Path, defines: dict, arch: str = "sm_90", block_threads
     return parse_ptxas(proc.stderr, block_threads)
 
 
+def nvcc_ptx(path: Path, defines: dict, arch: str = "sm_90", extra_options: tuple[str, ...] = ()) -> str:
+    """The PTX nvcc makes of ``path``: what the kernels read from where (tex, ld.shared, ld.local)."""
+    if not nvcc_available():
+        raise KernelBuildError("nvcc not found on PATH: the offline CUDA report needs the CUDA toolkit")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "k.ptx"
+        cmd = ["nvcc", "-ptx", f"-arch={arch}", f"-I{SHARED_KERNEL_DIR}",
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *extra_options, "-o", str(out), str(path)]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            from .backends.opencl import format_build_error
+            raise KernelBuildError(format_build_error(path, defines, proc.stderr))
+        return out.read_text()
+
+
 def parse_ptxas(log: str, block_threads: int = 128) -> dict[str, KernelResources]:
     out: dict[str, KernelResources] = {}
     for chunk in re.split(r"(?=ptxas info\s*: Compiling entry function)", log):

@@ -50,7 +50,8 @@ def main(test_dir: str) -> int:
         _write(d / "result.json", {"fraction": 0.0, "status": "compile_error", "output": str(e),
                                    "setup_s": t1 - t0})
         return 0
-    _write(d / "result.json", {"fraction": float(outcome.fraction), "status": "ok", "output": outcome.output,
+    _write(d / "result.json", {"fraction": float(outcome.fraction), "status": "skipped" if outcome.skipped else "ok",
+                               "output": outcome.output,
                                "data": outcome.data, "setup_s": t1 - t0, "run_s": time.perf_counter() - t1,
                                "device": backend.device_name})
     return 0
