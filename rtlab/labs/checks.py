@@ -724,7 +724,7 @@ def _hit_diff_text(base, got, width: int, what: str) -> tuple[bool, str]:
     if differ.any():
         i = int(np.flatnonzero(differ)[0])
         return False, (f"{int(differ.sum())} of {differ.size} pixels differ from the global variant; first at "
-                       f"{where(i)}: global {_hit_text(tri_b[i], base.hits.t[i])}, {what} "
+                       f"{where(i)}: global variant: {_hit_text(tri_b[i], base.hits.t[i])}, {what}: "
                        f"{_hit_text(tri_g[i], got.hits.t[i])}")
     i = int(np.flatnonzero(px)[0])
     return False, (f"the hits match the global variant but {int(px.sum())} pixels' colours differ; first at "

@@ -1,0 +1,144 @@
+/* rt_memory.h - where the scene's buffers live (§3.1.1) and how device code reads them.
+ *
+ * Traversal and intersection code reads only through these macros and takes RT_SCENE_PARAMS, so it
+ * reads the same for every memory placement. This file is the one place that differs by language
+ * and by placement (RT_NODE_MEM).
+ *   nodes      int2   kd-tree nodes (rtlab/accel/kdtree.py gives the encoding)
+ *   node_data  float4 per-variant node data: ropes and leaf boxes (kd ropes), BVH nodes (bvh);
+ *                     a dummy element otherwise
+ *   objects    int    triangle indices of the leaves (the paper's object list)
+ *   tris       float4 three vertices per triangle (w unused)
+ *   tri_data   float4 per-triangle data precomputed for the intersection test (Wald, Plucker);
+ *                     a dummy element for tests that need none (Moller-Trumbore)
+ *   normals    float4 three vertex normals per triangle (only read when RT_SMOOTH_NORMALS)
+ *   tri_materials int material id per triangle
+ * rtlab/device_scene.py uploads them in this order.
+ *
+ * RT_NODE_MEM == RT_MEM_TEXTURE reads all seven through the texture path instead, as the paper does
+ * for the node, object, vertex and normal lists (§3.1.1): CUDA texture objects (tex1Dfetch) and
+ * OpenCL image1d_buffer images over the same buffers (rtlab.backends Backend.texture). PoCL has no
+ * two-channel (RG) image format, so the OpenCL node image holds two int2 nodes per RGBA texel.
+ * Lab step 01 (kernels/cuda/01_memory.cu, kernels/opencl/01_memory.cl) asks for the fetch functions
+ * below in both languages.
+ */
+#ifndef RT_MEMORY_H
+#define RT_MEMORY_H
+#include "rt_port.h"
+
+#if defined(__CUDACC__) && RT_NODE_MEM == RT_MEM_TEXTURE
+/* Texture objects: each fetch goes through the texture cache (the 2008 path the paper measured). */
+#define RT_SCENE_PARAMS                                                                         \
+    cudaTextureObject_t nodes, cudaTextureObject_t node_data, cudaTextureObject_t objects,      \
+        cudaTextureObject_t tris, cudaTextureObject_t tri_data, cudaTextureObject_t normals,    \
+        cudaTextureObject_t tri_materials
+
+/* Element i of a two-channel int32 texture (the kd-tree's int2 nodes). */
+RT_FN int2 fetch_int2_texture(cudaTextureObject_t tex, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_int2_texture here; labs/01_memory/README.md says what it must do. */
+    /* STUB: return make_int2(3, 0); */
+    return make_int2(3, 0);
+    /* END SOLUTION */
+}
+
+/* Element i of a four-channel float texture (vertices, normals, per-variant data). */
+RT_FN float4 fetch_float4_texture(cudaTextureObject_t tex, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_float4_texture here; labs/01_memory/README.md says what it must do. */
+    return f4(0.0f, 0.0f, 0.0f, 0.0f);
+    /* END SOLUTION */
+}
+
+/* Element i of a one-channel int32 texture (object list, material ids). */
+RT_FN int fetch_int_texture(cudaTextureObject_t tex, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_int_texture here; labs/01_memory/README.md says what it must do. */
+    return 0;
+    /* END SOLUTION */
+}
+
+#define load_node(i) fetch_int2_texture(nodes, (i))
+#define load_node_data(i) fetch_float4_texture(node_data, (i))
+#define load_tri_data(i) fetch_float4_texture(tri_data, (i))
+#define load_object(i) fetch_int_texture(objects, (i))
+#define load_tri_vertex(tri, k) fetch_float4_texture(tris, 3 * (tri) + (k))
+#define load_tri_normal(tri, k) fetch_float4_texture(normals, 3 * (tri) + (k))
+#define load_tri_material(tri) fetch_int_texture(tri_materials, (tri))
+#elif RT_NODE_MEM == RT_MEM_TEXTURE
+/* Images over the buffers (image1d_buffer_t; NVIDIA's OpenCL and PoCL both have them). */
+#define RT_SCENE_PARAMS                                                                         \
+    read_only image1d_buffer_t nodes, read_only image1d_buffer_t node_data,                     \
+        read_only image1d_buffer_t objects, read_only image1d_buffer_t tris,                    \
+        read_only image1d_buffer_t tri_data, read_only image1d_buffer_t normals,                \
+        read_only image1d_buffer_t tri_materials
+
+/* int2 element i of an RGBA int32 image that packs two elements a texel (PoCL lacks RG images). */
+RT_FN int2 fetch_int2_image(read_only image1d_buffer_t img, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_int2_image here; labs/01_memory/README.md says what it must do. */
+    /* STUB: return (int2)(3, 0); */
+    return (int2)(3, 0);
+    /* END SOLUTION */
+}
+
+/* Element i of an RGBA float image. */
+RT_FN float4 fetch_float4_image(read_only image1d_buffer_t img, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_float4_image here; labs/01_memory/README.md says what it must do. */
+    return f4(0.0f, 0.0f, 0.0f, 0.0f);
+    /* END SOLUTION */
+}
+
+/* Element i of a one-channel (R) int32 image. */
+RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
+{
+    /* BEGIN SOLUTION */
+    /* TODO (lab 01_memory): write fetch_int_image here; labs/01_memory/README.md says what it must do. */
+    return 0;
+    /* END SOLUTION */
+}
+
+#define load_node(i) fetch_int2_image(nodes, (i))
+#define load_node_data(i) fetch_float4_image(node_data, (i))
+#define load_tri_data(i) fetch_float4_image(tri_data, (i))
+#define load_object(i) fetch_int_image(objects, (i))
+#define load_tri_vertex(tri, k) fetch_float4_image(tris, 3 * (tri) + (k))
+#define load_tri_normal(tri, k) fetch_float4_image(normals, 3 * (tri) + (k))
+#define load_tri_material(tri) fetch_int_image(tri_materials, (tri))
+#elif defined(__CUDACC__)
+/* Read-only data path: const __restrict__ plus __ldg (the non-texture read-only cache). */
+#define RT_SCENE_PARAMS                                                                         \
+    const int2 *__restrict__ nodes, const float4 *__restrict__ node_data,                       \
+        const int *__restrict__ objects, const float4 *__restrict__ tris,                       \
+        const float4 *__restrict__ tri_data, const float4 *__restrict__ normals,                \
+        const int *__restrict__ tri_materials
+#define load_node(i) __ldg(&nodes[(i)])
+#define load_node_data(i) __ldg(&node_data[(i)])
+#define load_tri_data(i) __ldg(&tri_data[(i)])
+#define load_object(i) __ldg(&objects[(i)])
+#define load_tri_vertex(tri, k) __ldg(&tris[3 * (tri) + (k)])
+#define load_tri_normal(tri, k) __ldg(&normals[3 * (tri) + (k)])
+#define load_tri_material(tri) __ldg(&tri_materials[(tri)])
+#else
+#define RT_SCENE_PARAMS                                                                         \
+    __global const int2 *restrict nodes, __global const float4 *restrict node_data,             \
+        __global const int *restrict objects, __global const float4 *restrict tris,             \
+        __global const float4 *restrict tri_data, __global const float4 *restrict normals,      \
+        __global const int *restrict tri_materials
+#define load_node(i) nodes[(i)]
+#define load_node_data(i) node_data[(i)]
+#define load_tri_data(i) tri_data[(i)]
+#define load_object(i) objects[(i)]
+#define load_tri_vertex(tri, k) tris[3 * (tri) + (k)]
+#define load_tri_normal(tri, k) normals[3 * (tri) + (k)]
+#define load_tri_material(tri) tri_materials[(tri)]
+#endif
+
+#define RT_SCENE_ARGS nodes, node_data, objects, tris, tri_data, normals, tri_materials
+
+#endif /* RT_MEMORY_H */
