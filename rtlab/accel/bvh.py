@@ -20,7 +20,6 @@ The root (node 0) is always inner: a one-leaf tree gets a second, identical leaf
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass
@@ -289,17 +288,10 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = 
 
 
 def _save(path: Path, bvh: Bvh) -> None:
-    """Write to a temporary name and rename into place (as rtlab.accel.cache does for kd-trees)."""
-    fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, child_lo=bvh.child_lo, child_hi=bvh.child_hi, child_ref=bvh.child_ref,
-                     objects=bvh.objects, bounds=bvh.bounds, depth=np.int64(bvh.depth),
-                     build_seconds=np.float64(bvh.build_seconds), format=np.str_(FORMAT_VERSION))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from .cache import atomic_savez
+    atomic_savez(path, child_lo=bvh.child_lo, child_hi=bvh.child_hi, child_ref=bvh.child_ref,
+                 objects=bvh.objects, bounds=bvh.bounds, depth=np.int64(bvh.depth),
+                 build_seconds=np.float64(bvh.build_seconds), format=np.str_(FORMAT_VERSION))
 
 
 def _load(path: Path, params: BvhBuildParams) -> Bvh:

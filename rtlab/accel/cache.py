@@ -36,17 +36,23 @@ def _cache_disabled() -> bool:
     return os.environ.get("RTLAB_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no")
 
 
-def _save(path: Path, tree: KdTree) -> None:
+def atomic_savez(path: Path, **arrays) -> None:
+    """np.savez to a temporary name beside ``path``, then rename into place: a reader never sees a
+    half-written cache file, and two processes building the same structure do not clash."""
     fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, nodes=tree.nodes, objects=tree.objects, bounds=tree.bounds,
-                     depth=np.int64(tree.depth), build_seconds=np.float64(tree.build_seconds),
-                     sah_cost=np.float64(tree.sah_cost), format=np.str_(FORMAT_VERSION))
+            np.savez(fh, **arrays)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _save(path: Path, tree: KdTree) -> None:
+    atomic_savez(path, nodes=tree.nodes, objects=tree.objects, bounds=tree.bounds,
+                 depth=np.int64(tree.depth), build_seconds=np.float64(tree.build_seconds),
+                 sah_cost=np.float64(tree.sah_cost), format=np.str_(FORMAT_VERSION))
 
 
 def _load(path: Path, params: KdBuildParams) -> KdTree:

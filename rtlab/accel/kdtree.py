@@ -48,7 +48,6 @@ about equal work), so both cores stay busy from the second level down.
 """
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 
@@ -56,10 +55,6 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-# GNU OpenMP's default spin-waiting made each parallel launch cost ~8 ms while other processes kept
-# both cores of the 2-core lab machine busy; passive workers started in ~0.05 ms there (~5 % slower
-# builds on an idle machine). Read only when numba first starts its threads.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 LEAF_TAG = 3
 
