@@ -70,14 +70,17 @@ TIME_SCALE = {"infinite_loop": 0.3}
 
 
 def materialize(name: str, out: Path) -> Path:
-    """The stored submission, its regions spliced into the current reference files, same layout."""
+    """The stored submission as a student hands it in: every lab file whole, the stored functions'
+    regions spliced into the current reference files (same layout); a lab file the folder leaves
+    out is the reference's, under its repository path."""
     src = SUBMISSIONS / name
-    by_name = {Path(f.path).name: f.path for f in CONFIG.files}
-    for f in sorted(src.rglob("*.h")):
-        reference = (PROJECT_DIR / by_name[f.name]).read_text()
-        dst = out / f.relative_to(src)
+    stored = {f.name: f for f in src.rglob("*.h")}
+    for lab_file in CONFIG.files:
+        reference = (PROJECT_DIR / lab_file.path).read_text()
+        f = stored.get(Path(lab_file.path).name)
+        dst = out / (f.relative_to(src) if f else lab_file.path)
         dst.parent.mkdir(parents=True, exist_ok=True)
-        dst.write_text(splice_regions(reference, f.read_text(), str(f)))
+        dst.write_text(splice_regions(reference, f.read_text(), str(f)) if f else reference)
     return out
 
 
