@@ -557,30 +557,17 @@ def _family_cases(family: int, size: str) -> list[Case]:
 def trace_case(case: Case, backend, isect: str, traversal: str, conservative: int | None = None, **defines):
     """Closest hits of the case's rays: (tri, t, kernel ms). ``conservative`` None keeps the test's
     default RT_CONSERVATIVE (on for watertight), 0/1 forces it; ``defines`` add -D switches
-    (e.g. RT_HAS_FP64=0 for the watertight test's float-only path).
-
-    rtlab.trace does the same launch; this copy adds the RT_CONSERVATIVE override and one stack
-    size for every scene (ROBUST_STACK_SIZE), so that a program serves all cases."""
-    from .kernels import Variant, load_program, primary_step
-    from .layout import HIT_DTYPE, float4_rows
-    from .tracing import TRACE_BLOCK, device_scene, unpack_hits
-    variant = Variant(traversal=traversal, intersection=isect)
-    ds = device_scene(case.scene, backend)
-    features = ds.features(variant)
-    features = replace(features, stack_size=max(ROBUST_STACK_SIZE, features.stack_size))
+    (e.g. RT_HAS_FP64=0 for the watertight test's float-only path). One stack size for every scene
+    (ROBUST_STACK_SIZE), so that a program serves all cases."""
+    from .kernels import Variant
+    from .tracing import trace
     extra = dict(defines)
     if conservative is not None:
         extra["RT_CONSERVATIVE"] = int(conservative)
-    program = load_program(backend, primary_step(variant), variant, features, **extra)
-    ds.set_constants(program, None, variant)
-    n = case.n_rays
-    o_buf = backend.to_device(float4_rows(case.origins, 0.0))
-    d_buf = backend.to_device(float4_rows(case.directions, np.inf))
-    h_buf = backend.empty(n * HIT_DTYPE.itemsize)
-    ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
-                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
-    t, tri, _, _ = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
-    return tri, t, ms
+    result = trace(case.scene, case.origins, case.directions, backend=backend,
+                   variant=Variant(traversal=traversal, intersection=isect), defines=extra,
+                   min_stack_size=ROBUST_STACK_SIZE)
+    return result.tri, result.t, result.kernel_ms
 
 
 def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessRow) -> RobustnessRow:

@@ -5,7 +5,7 @@ benchmarks all go through here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,9 +60,12 @@ def _rays_f32(a, name: str) -> np.ndarray:
 
 
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
-          tmin: float = 0.0, tmax: float = np.inf, device: str | None = None) -> TraceResult:
+          tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
+          defines: dict | None = None, min_stack_size: int = 0) -> TraceResult:
     """Closest hit along each ray within (tmin, tmax). Rays with NaN/Inf components or a zero
-    direction are reported as misses. ``backend`` is a Backend or a name ("opencl", "cuda")."""
+    direction are reported as misses. ``backend`` is a Backend or a name ("opencl", "cuda").
+    ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
+    stack at least that deep, so one program serves scenes of different depths."""
     origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
@@ -74,7 +77,10 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     if n == 0:
         empty = np.zeros(0, np.float32)
         return TraceResult(empty, np.zeros(0, np.int32), empty, empty, 0.0, backend.name, backend.device_name)
-    program = load_program(backend, primary_step(variant), variant, ds.features(variant))
+    features = ds.features(variant)
+    if features.stack_size < min_stack_size:
+        features = replace(features, stack_size=int(min_stack_size))
+    program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
     ds.set_constants(program, None, variant)
     o_buf = backend.to_device(float4_rows(origins, tmin))
     d_buf = backend.to_device(float4_rows(directions, tmax))
