@@ -20,15 +20,19 @@ PRIMARY_STEP = "00_primary"
 TRACE_BLOCK = 128
 
 _device_scenes: dict = {}
+DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its buffers) past that
 
 
 def device_scene(scene: Scene, backend) -> DeviceScene:
-    """The scene uploaded to ``backend``, once per (scene object, backend)."""
+    """The scene uploaded to ``backend``, once per (scene object, backend), for the most recently
+    used few: benches that derive many scenes (material presets) do not hold every upload."""
     key = (id(scene), id(backend))
-    entry = _device_scenes.get(key)
+    entry = _device_scenes.pop(key, None)
     if entry is None or entry[0] is not scene:
         entry = (scene, DeviceScene.upload(backend, scene))
-        _device_scenes[key] = entry
+    _device_scenes[key] = entry            # most recent last
+    while len(_device_scenes) > DEVICE_SCENES_KEPT:
+        _device_scenes.pop(next(iter(_device_scenes)))
     return entry[1]
 
 
