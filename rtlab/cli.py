@@ -112,7 +112,9 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            materials: str = typer.Option("auto", help="with --shadows/--bounces: file, mtl, bart, paper, "
                                          "paper-refraction, auto (rtlab.scene.materials)"),
            fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
-           compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels")):
+           compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels"),
+           schedule: str = typer.Option("tree", help="with --bounces: tree (the paper's depth-first kernel "
+                                        "tree) or wavefront (one launch per level)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
     from .kernels import Variant
@@ -129,7 +131,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     if shadows is not None or bounces is not None:
         from .whitted import render_whitted_command
         render_whitted_command(console, sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel,
-                               compact, repeats, check, out)
+                               compact, repeats, check, out, schedule)
         return
     with console.status(f"rendering {sc.name} {sc.camera.width}x{sc.camera.height}..."):
         result = do_render(sc, be, variant, repeats=repeats, warmup=1, write_hits=check)
@@ -334,14 +336,17 @@ def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help
                       r.regs_text(), PAPER_REGISTERS[r.mode], r.occupancy_text(), PAPER_OCCUPANCY[r.mode], r.error_text())
     console.print(table)
     table = Table(title=f"Table 5: reflection/refraction kernel tree, {size}x{size}, materials {materials}")
-    for col in ("scene", "bounces", "backend", "ms", "fps", "paper fps", "compacted fps", "launches", "rays",
-                "regs", "occupancy", "error vs float64"):
+    for col in ("scene", "bounces", "backend", "ms", "fps", "paper fps", "compacted fps", "wavefront fps",
+                "launches", "rays", "regs", "occupancy", "error vs float64"):
         table.add_column(col, justify="right")
     for r in (r for r in rows if r.table == "bounces"):
         e = r.extra
+        wave = "wave_fps" in e
         table.add_row(r.scene, r.mode, r.backend, f"{r.median_ms:.2f}", f"{r.fps:,.1f}", str(r.paper_fps or "-"),
                       f"{e['compact_fps']:,.1f}" + ("" if e["same_image"] else " (image differs!)"),
-                      f"{r.launches} / {e['compact_launches']}", f"{r.rays:,} / {e['compact_rays']:,}",
+                      f"{e['wave_fps']:,.1f} (±{e['wave_max_diff']})" if wave else "-",
+                      f"{r.launches} / {e['compact_launches']}" + (f" / {e['wave_launches']}" if wave else ""),
+                      f"{r.rays:,} / {e['compact_rays']:,}" + (f" / {e['wave_rays']:,}" if wave else ""),
                       r.regs_text(), r.occupancy_text(), r.error_text())
     console.print(table)
     table = Table(title=f"scene-specialised vs general kernels, scene materials, {special_bounces} bounces, {size}x{size}")

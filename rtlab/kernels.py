@@ -125,6 +125,7 @@ class SceneFeatures:
     smooth_normals: bool = False
     n_lights: int = 1
     n_materials: int = 1
+    near_origin: bool = False     # RT_BVH_BOX_FMA: the BVH may use the fused box test (device_scene.near_origin)
     # Shading features (§3.2): the defaults are the general kernel, which compiles everything in.
     # A scene-specialised kernel leaves out what its scene cannot use; the image does not change.
     has_lights: bool = True       # RT_LIGHTS, RT_SHADOWS: no lights, no lighting loop, no shadow rays
@@ -158,6 +159,8 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
+    if variant.traversal == "bvh":
+        defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block
         defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]

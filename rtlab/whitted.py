@@ -17,6 +17,12 @@ have children to the next level and the host launches the children over that cou
 wavefront step, beyond the paper), skipping empty subtrees; with two-pass shadows a shading kernel
 follows every node.
 
+``schedule="wavefront"`` (beyond the paper) traces the same rays level by level instead: one launch
+per level over a queue of all that level's rays, reflection and refraction together, children
+spawned where their parent is shaded (kernels/shared/rt_wavefront.h says why: the tree's deep nodes
+are launches too small to fill a GPU). Two queues are alive at once; the image equals the tree's up
+to the order of float additions into a pixel (at most one 8-bit step).
+
 Kernels leave out what the scene does not use (``specialise=True``): no lights, no lighting loop
 and no shadow rays; no transparent material, no refraction kernel and no Fresnel; the bounce depth
 is cut to the deepest level that can still hold a ray. The general kernel (``specialise=False``)
@@ -39,6 +45,7 @@ from .tracing import TraceResult, device_scene, unpack_hits
 SHADOWS_STEP = "04_shadows"
 TREE_STEP = "05_kernel_tree"
 SHADOW_MODES = ("one-pass", "two-pass", "none")
+SCHEDULES = ("tree", "wavefront")             # the paper's depth-first kernel tree; level by level
 FRESNEL_MODES = {"schlick": 1, "fixed": 0}   # RT_FRESNEL
 MAX_LIGHTS = 32                              # lights_reaching() keeps one bit a light
 NO_RAY = -2                                  # RT_NO_RAY: tri of a tree node whose ray was not spawned
@@ -70,6 +77,7 @@ class WhittedResult:
     bounces: int                         # asked for
     depth: int                           # compiled RT_MAX_DEPTH (kernel-tree levels below the root)
     compact: bool
+    schedule: str = "tree"
     backend: str = ""
     device: str = ""
     variant: Variant = field(default_factory=Variant)
@@ -97,10 +105,14 @@ class WhittedResult:
 
 
 def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact: bool = False,
-                    write_hits: bool = False, tree: bool = False) -> dict:
+                    write_hits: bool = False, tree: bool = False, schedule: str = "tree") -> dict:
     """Defines beyond the scene's own (rtlab.kernels.build_defines) for one render mode."""
     if shadows not in SHADOW_MODES:
         raise RtlabError(f"shadows must be one of {', '.join(SHADOW_MODES)}, not {shadows!r}")
+    if schedule not in SCHEDULES:
+        raise RtlabError(f"schedule must be one of {', '.join(SCHEDULES)}, not {schedule!r}")
+    if schedule == "wavefront" and shadows == "two-pass":
+        raise RtlabError("the wavefront schedule shades where it traces: shadows one-pass or none, not two-pass")
     if fresnel not in FRESNEL_MODES:
         raise RtlabError(f"fresnel must be one of {', '.join(FRESNEL_MODES)}, not {fresnel!r}")
     if not isinstance(bounces, (int, np.integer)) or not 0 <= bounces <= SceneFeatures.max_bounces:
@@ -110,15 +122,16 @@ def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact:
                "RT_FRESNEL": FRESNEL_MODES[fresnel],
                "RT_WRITE_HITS": int(write_hits)}
     if tree:
-        defines["RT_COMPACT"] = int(compact)
+        defines["RT_COMPACT"] = int(compact and schedule == "tree")
         defines["RT_TWO_PASS"] = int(shadows == "two-pass")
+        defines["RT_WAVEFRONT"] = int(schedule == "wavefront")
     return defines
 
 
 def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
                    shadows: str = "one-pass", bounces: int = 0, compact: bool = False, repeats: int = 1,
                    warmup: int = 0, write_hits: bool = False, fresnel: str = "schlick",
-                   specialise: bool = True, device: str | None = None) -> WhittedResult:
+                   specialise: bool = True, device: str | None = None, schedule: str = "tree") -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
     (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones."""
     if not hasattr(backend, "compile"):
@@ -134,13 +147,14 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     features = ds.features(variant)
     if not specialise:
         features = features.general()
-    tree = bounces > 0
+    wavefront = schedule == "wavefront"
+    tree = bounces > 0 or wavefront
     step = TREE_STEP if tree else SHADOWS_STEP
-    extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree)
+    extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree, schedule)
     program = load_program(backend, step, variant, features, **extra)
     ds.set_constants(program, camera, variant)
-    runner = (_TreeFrame if tree else _ShadowFrame)(backend, program, ds.scene_args(variant), camera, variant,
-                                                    shadows, extra, write_hits)
+    frame_class = _WavefrontFrame if wavefront else _TreeFrame if tree else _ShadowFrame
+    runner = frame_class(backend, program, ds.scene_args(variant), camera, variant, shadows, extra, write_hits)
     for _ in range(warmup):
         runner.frame()
     frames, walls = [], []
@@ -151,8 +165,9 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
         frames.append(sum(launch.ms for launch in launches))
     result = WhittedResult(runner.image(), frames, float(np.median(walls)), launches,
                            {k: program.resources(k, runner.block(k)).as_dict() for k in runner.kernels()},
-                           program.defines, step, shadows, int(bounces), extra["RT_MAX_DEPTH"], bool(compact and tree),
-                           backend.name, backend.device_name, variant)
+                           program.defines, step, shadows, int(bounces), extra["RT_MAX_DEPTH"],
+                           bool(compact and tree and not wavefront), schedule, backend.name, backend.device_name,
+                           variant)
     if write_hits:
         t, tri, u, v = runner.primary_hits()
         result.hits = TraceResult(t, tri, u, v, result.median_ms, backend.name, backend.device_name)
@@ -160,7 +175,15 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     return result
 
 
-class _ShadowFrame:
+class _Frame:
+    """What every frame runner shares: the packed RGBA8 pixels of the last frame."""
+
+    def image(self) -> np.ndarray:
+        rgba = self.backend.to_host(self.pixels, np.uint32, self.n)
+        return rgba.view(np.uint8).reshape(self.camera.height, self.camera.width, 4)[:, :, :3].copy()
+
+
+class _ShadowFrame(_Frame):
     """Lab step 04: one frame of one-pass (or no) shadows, or two-pass shadows."""
 
     def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
@@ -191,10 +214,6 @@ class _ShadowFrame:
                                   constants=CONSTANTS)
         return [Launch("trace_primary_hits", "P", 0, self.n, ms1), Launch("shade_hits", "P", 0, self.n, ms2)]
 
-    def image(self) -> np.ndarray:
-        rgba = self.backend.to_host(self.pixels, np.uint32, self.n)
-        return rgba.view(np.uint8).reshape(self.camera.height, self.camera.width, 4)[:, :, :3].copy()
-
     def primary_hits(self):
         return unpack_hits(self.backend.to_host(self.hits, np.float32, 4 * self.n))
 
@@ -208,7 +227,7 @@ class _Level:
     count: object
 
 
-class _TreeFrame:
+class _TreeFrame(_Frame):
     """Lab step 05: one frame of the kernel tree, walked depth-first from the host."""
 
     def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
@@ -309,10 +328,6 @@ class _TreeFrame:
         if level == 0:
             self.primary = (hits, pixels if self.compact else np.arange(self.n))
 
-    def image(self) -> np.ndarray:
-        rgba = self.backend.to_host(self.pixels, np.uint32, self.n)
-        return rgba.view(np.uint8).reshape(self.camera.height, self.camera.width, 4)[:, :, :3].copy()
-
     def primary_hits(self):
         hits, pixels = self.primary
         out = np.zeros((self.n, 4), np.float32)
@@ -320,8 +335,112 @@ class _TreeFrame:
         return unpack_hits(out)
 
 
+@dataclass
+class _Queue:
+    """A ray queue of rt_wavefront.h: (origin, weight), (direction, pixel), path, two counts."""
+    ow: object
+    dp: object
+    path: object
+    count: object
+    cap: int
+
+
+class _WavefrontFrame(_Frame):
+    """The tree's rays level by level (kernels/shared/rt_wavefront.h): one launch per level over the
+    queue the level above filled. Two queues, the one read and the one filled, alternate; each is
+    grown to twice the rays of the level that fills it (a ray appends at most two children)."""
+
+    def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
+        self.backend, self.program, self.args, self.camera = backend, program, scene_args, camera
+        self.block2d = variant.block
+        self.block1d = (variant.block[0] * variant.block[1],)
+        self.n = camera.width * camera.height
+        self.depth = defines["RT_MAX_DEPTH"]
+        self.write_hits = write_hits
+        self.frame_rgb = backend.empty(16 * self.n)
+        self.pixels = backend.empty(4 * self.n)
+        self.hits_cap = self.n if write_hits else 1
+        self.hits = backend.empty(16 * self.hits_cap)
+        self.queues = [self._queue(2 * self.n if self.depth > 0 else 1) for _ in range(2)]
+        self.zero = np.zeros(2, np.int32)
+        self.tree: dict | None = None
+        self.primary = None
+
+    def _queue(self, cap: int) -> _Queue:
+        b = self.backend
+        return _Queue(b.empty(16 * cap), b.empty(16 * cap), b.empty(4 * cap), b.empty(8), cap)
+
+    def _filled(self, index: int, need: int) -> _Queue:
+        """Queue ``index``, emptied and grown to hold ``need`` rays, for the next launch to fill."""
+        if self.queues[index].cap < need:
+            self.queues[index] = self._queue(need)
+        self.backend.fill(self.queues[index].count, self.zero)
+        return self.queues[index]
+
+    def _queue_args(self, q: _Queue) -> list:
+        return [q.ow, q.dp, q.path, q.count, np.int32(q.cap)]
+
+    def kernels(self) -> list[str]:
+        return ["trace_wavefront_primary"] + (["trace_wavefront"] if self.depth > 0 else []) + ["pack_frame"]
+
+    def block(self, kernel):
+        return self.block2d if kernel == "trace_wavefront_primary" else self.block1d
+
+    def frame(self) -> list[Launch]:
+        launches: list[Launch] = []
+        self.tree = {} if self.write_hits else None
+        out = self._filled(0, 2 * self.n if self.depth > 0 else 0)
+        ms = self.program.launch("trace_wavefront_primary", (self.camera.width, self.camera.height), self.block2d,
+                                 self.args + [self.frame_rgb, self.hits] + self._queue_args(out), constants=CONSTANTS)
+        launches.append(Launch("trace_wavefront_primary", "P", 0, self.n, ms))
+        if self.tree is not None:
+            self._record_level(0, None, 0, 0)
+        for level in range(1, self.depth + 1):
+            src = self.queues[(level - 1) % 2]
+            front, back = (int(c) for c in self.backend.to_host(src.count, np.int32, 2))
+            rays = front + back
+            if rays == 0:
+                break
+            out = self._filled(level % 2, 2 * rays if level < self.depth else 0)
+            if self.write_hits and rays > self.hits_cap:
+                self.hits_cap, self.hits = rays, self.backend.empty(16 * rays)
+            ms = self.program.launch("trace_wavefront", (rays,), self.block1d,
+                                     self.args + [src.ow, src.dp, src.path, np.int32(front), np.int32(rays),
+                                                  np.int32(src.cap), self.frame_rgb, self.hits]
+                                     + self._queue_args(out) + [np.int32(level)], constants=CONSTANTS)
+            launches.append(Launch("trace_wavefront", "P" + "*" * level, level, rays, ms))
+            if self.tree is not None:
+                self._record_level(level, src, front, back)
+        ms = self.program.launch("pack_frame", (self.n,), self.block1d, [self.frame_rgb, self.pixels, np.int32(self.n)])
+        launches.append(Launch("pack_frame", "", 0, self.n, ms))
+        return launches
+
+    def _record_level(self, level: int, src: _Queue | None, front: int, back: int) -> None:
+        """The ray tree's nodes of one level, from the launch's hits and the queue it read."""
+        rays = front + back if level else self.n
+        hits = self.backend.to_host(self.hits, np.float32, 4 * rays).reshape(-1, 4)
+        tri = hits[:, 3].view(np.int32)
+        if level == 0:
+            self.tree["P"] = tri.copy()
+            self.primary = (hits, np.arange(self.n))
+            return
+        slots = np.concatenate([np.arange(front), src.cap - 1 - np.arange(back)])
+        pixel = self.backend.to_host(src.dp, np.float32, 4 * src.cap).reshape(-1, 4)[slots, 3].view(np.int32)
+        path = self.backend.to_host(src.path, np.int32, src.cap)[slots]
+        for code in np.unique(path):
+            node = "P" + "".join("RT"[(int(code) >> b) & 1] for b in range(level))
+            ids = np.full(self.n, NO_RAY, np.int32)
+            mask = path == code
+            ids[pixel[mask]] = tri[mask]
+            self.tree[node] = ids
+
+    def primary_hits(self):
+        return unpack_hits(self.primary[0])
+
+
 def render_whitted_command(console, scene: Scene, backend, variant: Variant, shadows: str, bounces: int,
-                           materials: str, fresnel: str, compact: bool, repeats: int, check: bool, out) -> WhittedResult:
+                           materials: str, fresnel: str, compact: bool, repeats: int, check: bool, out,
+                           schedule: str = "tree") -> WhittedResult:
     """`rtlab render --shadows/--bounces`: render with a material preset, print the figures, write the PNG."""
     from .rendering import save_png
     from .scene.materials import apply_materials
@@ -329,13 +448,14 @@ def render_whitted_command(console, scene: Scene, backend, variant: Variant, sha
     cam = scene.camera
     with console.status(f"rendering {scene.name} {cam.width}x{cam.height}, shadows {shadows}, {bounces} bounces..."):
         result = render_whitted(scene, backend, variant, shadows=shadows, bounces=bounces, compact=compact,
-                                repeats=repeats, warmup=1, write_hits=check, fresnel=fresnel)
+                                repeats=repeats, warmup=1, write_hits=check, fresnel=fresnel, schedule=schedule)
     save_png(result.image, out)
     kernels = ", ".join(f"{k} {ms:.2f} ms" + (f" ({result.resources[k]['registers']} regs)"
                                               if result.resources.get(k, {}).get("registers") else "")
                         for k, ms in result.kernel_ms().items())
     console.print(f"{scene.name} {cam.width}x{cam.height} on {result.backend} ({result.device}), materials "
-                  f"{materials}, shadows {shadows}, {bounces} bounces (depth {result.depth}): "
+                  f"{materials}, shadows {shadows}, {bounces} bounces (depth {result.depth}, {schedule}"
+                  f"{', compacted' if result.compact else ''}): "
                   f"{result.median_ms:.2f} ms a frame ({result.fps:,.1f} fps), {len(result.launches)} launches, "
                   f"{result.rays_launched():,} rays; {kernels}")
     if bounces > 0 and result.depth == 0:

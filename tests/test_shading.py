@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rtlab.errors import RtlabError
 from rtlab.kernels import SceneFeatures, Variant, build_defines, kernel_source
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import apply_materials, glass_scene, mtl_materials, reachable_bounces, shading_features
@@ -85,6 +86,52 @@ def test_compaction_launches_only_live_rays(backend, glass):
     secondary = [l for l in compact.launches if l.level > 0]
     assert secondary and all(0 < l.rays < n for l in secondary)
     assert compact.rays_launched() < full.rays_launched()
+
+
+# ---- the wavefront schedule: the tree's rays level by level ---------------------------------------
+
+def _all_glass(scene: Scene) -> Scene:
+    """Every material half glass, half mirror: most hits spawn both children, so a level holds
+    more rays than the frame has pixels and the queues must grow."""
+    mats = [Material(**{**vars(m), "reflectivity": 0.3, "transparency": 0.6, "ior": 1.5}) for m in scene.materials]
+    return Scene(**{**vars(scene), "materials": mats})
+
+
+@pytest.mark.parametrize("make", [lambda s: s, _all_glass], ids=["glass", "all-glass"])
+def test_wavefront_traces_the_trees_rays(backend, glass, make):
+    """One launch per level, the same ray tree as the depth-first kernel tree, the same image up to
+    the order of float additions into a pixel (one 8-bit step at most, in few pixels)."""
+    scene = make(glass)
+    n = SIZE * SIZE
+    for bounces in (1, 3):
+        tree = render_whitted(scene, backend, bounces=bounces, write_hits=True)
+        wave = render_whitted(scene, backend, bounces=bounces, write_hits=True, schedule="wavefront")
+        assert [l.kernel for l in wave.launches] == (["trace_wavefront_primary"] + ["trace_wavefront"] * bounces
+                                                      + ["pack_frame"])
+        assert sorted(k for k, v in tree.tree.items() if np.any(v != NO_RAY)) == sorted(wave.tree)
+        for node, ids in wave.tree.items():
+            np.testing.assert_array_equal(ids, tree.tree[node], err_msg=node)
+        np.testing.assert_array_equal(wave.hits.tri, tree.hits.tri)
+        diff = np.abs(wave.image.astype(np.int32) - tree.image.astype(np.int32)).max(axis=2)
+        assert diff.max() <= 1 and np.count_nonzero(diff) <= 0.001 * n, (bounces, diff.max(), np.count_nonzero(diff))
+        # the queue holds every spawned ray of a level and nothing else
+        for launch in wave.launches[1:-1]:
+            level_nodes = [ids for node, ids in wave.tree.items() if len(node) == launch.level + 1]
+            assert launch.rays == sum(int(np.count_nonzero(ids != NO_RAY)) for ids in level_nodes)
+    if make is _all_glass:
+        assert max(l.rays for l in wave.launches[1:-1]) > n, "no level outgrew the first queue"
+
+
+def test_wavefront_matches_reference(backend, glass):
+    result = render_whitted(glass, backend, bounces=3, write_hits=True, schedule="wavefront")
+    _check_against_reference(result, reference_whitted(glass, bounces=3), "wavefront, 3 bounces")
+
+
+def test_wavefront_rejects_two_pass_shadows():
+    with pytest.raises(RtlabError, match="one-pass or none"):
+        shading_defines(SceneFeatures(), "two-pass", 2, "schlick", tree=True, schedule="wavefront")
+    with pytest.raises(RtlabError, match="schedule must be one of"):
+        shading_defines(SceneFeatures(), "one-pass", 2, "schlick", tree=True, schedule="breadth")
 
 
 @pytest.mark.parametrize("make", [_opaque, _unlit, lambda s: _unlit(_opaque(s))], ids=["no-glass", "no-lights", "neither"])
@@ -378,7 +425,6 @@ def test_scene_features(glass):
 
 
 def test_shading_defines_reject_bad_modes(glass):
-    from rtlab.errors import RtlabError
     with pytest.raises(RtlabError, match="shadows"):
         shading_defines(SceneFeatures(), "three-pass", 0, "schlick")
     with pytest.raises(RtlabError, match="fresnel"):

@@ -456,3 +456,16 @@ def test_traversal_step_compiles_for_sm90(variant):
               f"{r.spill_bytes} B spills, occupancy {r.occupancy:.0%} at 128 threads")
         assert 0 < r.registers <= 255
         assert (r.shared_bytes > 0) == (variant == "packet")
+
+
+def test_fused_box_test_only_for_scenes_near_the_origin():
+    """The BVH's fused slab form (RT_BVH_BOX_FMA) rounds by half an ulp of the origin's
+    coordinates: the loader allows it only where those stay within a few extents of the scene."""
+    from rtlab.device_scene import near_origin, scene_features
+    from rtlab.kernels import build_defines
+    near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    far = _scene_from_mesh("far", [[1e5, 0, 0], [1e5 + 1, 0, 0], [1e5, 1, 0]], [[0, 1, 2]])
+    assert near_origin(near) and not near_origin(far)
+    assert build_defines(Variant("bvh"), scene_features(near, 8))["RT_BVH_BOX_FMA"] == 1
+    assert build_defines(Variant("bvh"), scene_features(far, 8))["RT_BVH_BOX_FMA"] == 0
+    assert "RT_BVH_BOX_FMA" not in build_defines(Variant("stack"), scene_features(near, 8))

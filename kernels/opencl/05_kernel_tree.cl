@@ -4,6 +4,9 @@
 // kernels/shared/rt_whitted.h; this file holds only what OpenCL spells its own way: constant-memory
 // arguments (last, in the order frame, lights, materials) and the work-item index.
 #include "rt_whitted.h"
+#if RT_WAVEFRONT
+#include "rt_wavefront.h"
+#endif
 
 // The record buffers of one level: (direction, weight), (t, u, v, tri bits), pixel (compacted).
 #define RT_LEVEL_OUT __global float4 *restrict dirs_out, __global float4 *restrict hits_out, \
@@ -12,6 +15,7 @@
     __global const int *restrict pixels_in, int n_in
 #define RT_SHADING_CONSTANTS __constant RtFrame *frame, __constant RtLight *lights, __constant RtMaterial *materials
 
+#if !RT_WAVEFRONT
 // Level 0: primary rays, shaded into the float4 frame, recorded for the first bounce.
 __kernel void trace_primary_tree(RT_SCENE_PARAMS, __global float4 *restrict frame_rgb, RT_LEVEL_OUT,
                                  RT_SHADING_CONSTANTS)
@@ -61,6 +65,37 @@ __kernel void shade_records(RT_SCENE_PARAMS, RT_LEVEL_IN, __global float4 *restr
     shade_tree_record(RT_SCENE_ARGS, frame, lights, materials, level, i, dirs_in, hits_in, pixels_in, frame_rgb);
 }
 #endif
+
+#else /* RT_WAVEFRONT: the tree's rays level by level, one launch per level */
+// The queue a launch fills: (origin, weight), (direction, pixel bits), path, two counts, capacity.
+#define RT_QUEUE_OUT __global float4 *restrict q_ow, __global float4 *restrict q_dp, __global int *restrict q_path, \
+    __global int *restrict q_count, int q_cap
+
+// Level 0: primary rays; their children go to the queue.
+__kernel void trace_wavefront_primary(RT_SCENE_PARAMS, __global float4 *restrict frame_rgb,
+                                      __global float4 *restrict hits_out, RT_QUEUE_OUT, RT_SHADING_CONSTANTS)
+{
+    int x = get_global_id(0);
+    int y = get_global_id(1);
+    if (x >= frame->width || y >= frame->height)
+        return;
+    trace_wavefront_pixel(RT_SCENE_ARGS, frame, lights, materials, x, y, frame_rgb, hits_out, q_ow, q_dp, q_path,
+                          q_count, q_cap);
+}
+
+// Level >= 1: every ray of the level, reflection and refraction.
+__kernel void trace_wavefront(RT_SCENE_PARAMS, __global const float4 *restrict in_ow,
+                              __global const float4 *restrict in_dp, __global const int *restrict in_path,
+                              int n_front, int n_in, int in_cap, __global float4 *restrict frame_rgb,
+                              __global float4 *restrict hits_out, RT_QUEUE_OUT, int level, RT_SHADING_CONSTANTS)
+{
+    int i = get_global_id(0);
+    if (i >= n_in)
+        return;
+    trace_wavefront_ray(RT_SCENE_ARGS, frame, lights, materials, level, i, in_ow, in_dp, in_path, n_front, in_cap,
+                        frame_rgb, hits_out, q_ow, q_dp, q_path, q_count, q_cap);
+}
+#endif /* RT_WAVEFRONT */
 
 // The accumulated frame to RGBA8.
 __kernel void pack_frame(__global const float4 *restrict frame_rgb, __global unsigned int *restrict pixels, int n)

@@ -294,12 +294,28 @@ RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
         hit->t = t;
 }
 
-/* Clip the ray to an axis-aligned box: slab test (Kay & Kajiya). Rays with NaN/Inf origin or
- * direction, or a zero direction, never enter. */
-RT_FN int clip_ray_box(const Ray *ray, float4 bmin, float4 bmax, float *t_enter, float *t_exit)
+/* Whether the ray can enter any box: finite origin and direction, a non-zero direction. */
+RT_FN int ray_can_enter(const Ray *ray)
 {
-    if (!(finite3(ray->o) && finite3(ray->d) && dot3(ray->d, ray->d) > 0.0f))
-        return 0;
+    return finite3(ray->o) && finite3(ray->d) && dot3(ray->d, ray->d) > 0.0f;
+}
+
+/* One slab in Aila & Laine's form (HPG 2009): t = b inv_d - o inv_d, one fused multiply-add per
+ * plane (o_inv = o inv_d, once a ray), near and far by min/max instead of the sign of the
+ * direction. Its extra rounding, half an ulp of o inv_d, is far below what decides a hit; it is
+ * for culling boxes (the BVH's children, rt_bvh.h, which keeps inv_d finite), not for the exact
+ * segment clip_ray_box gives a kd-tree traversal. */
+RT_FN void clip_slab_fma(float lo, float hi, float o_inv, float inv_d, float *t0, float *t1)
+{
+    float ta = rt_fma(lo, inv_d, -o_inv), tb = rt_fma(hi, inv_d, -o_inv);
+    *t0 = rt_max(*t0, rt_min(ta, tb));
+    *t1 = rt_min(*t1, rt_max(ta, tb));
+}
+
+/* Clip a ray that can enter boxes (ray_can_enter) to an axis-aligned box: slab test (Kay &
+ * Kajiya). Traversals that test many boxes check the ray once, then call this per box. */
+RT_FN int clip_entering_ray_box(const Ray *ray, float4 bmin, float4 bmax, float *t_enter, float *t_exit)
+{
 #if RT_CONSERVATIVE
     float3 inv_far = mul3(ray->inv_d, 1.0f + RT_T_PAD);
 #else
@@ -312,6 +328,13 @@ RT_FN int clip_ray_box(const Ray *ray, float4 bmin, float4 bmax, float *t_enter,
     *t_enter = t0;
     *t_exit = t1;
     return t0 <= t1;
+}
+
+/* Clip the ray to an axis-aligned box. Rays with NaN/Inf origin or direction, or a zero
+ * direction, never enter. */
+RT_FN int clip_ray_box(const Ray *ray, float4 bmin, float4 bmax, float *t_enter, float *t_exit)
+{
+    return ray_can_enter(ray) && clip_entering_ray_box(ray, bmin, bmax, t_enter, t_exit);
 }
 
 #endif /* RT_INTERSECT_H */

@@ -79,6 +79,7 @@
 #define rt_as_float(i) __int_as_float(i)
 #define rt_as_int(f) __float_as_int(f)
 #define rt_min fminf
+#define rt_fma fmaf
 #define rt_max fmaxf
 #define rt_abs fabsf
 #define rt_sqrt sqrtf
@@ -98,6 +99,7 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 #define rt_as_float(i) as_float(i)
 #define rt_as_int(f) as_int(f)
 #define rt_min fmin
+#define rt_fma fma
 #define rt_max fmax
 #define rt_abs fabs
 #define rt_sqrt sqrt

@@ -10,7 +10,9 @@ figures (GeForce 8800 GTS, 1024x1024) stand beside them.
 Shadow rows render the scene's materials as loaded ("file": the paper's Table 5 shadow columns
 have no secondary rays). Bounce rows use the Fig. 6 material overrides ("paper", see
 rtlab.scene.materials) with one-pass shadows in every tree node, measured without and with the
-compaction of live rays between levels (beyond the paper), to show whether compaction pays.
+compaction of live rays between levels (beyond the paper), to show whether compaction pays, and
+with the wavefront schedule (beyond the paper: one launch per level over a queue of all its rays,
+rtlab.whitted), whose image may differ from the tree's by one 8-bit step (order of additions).
 Specialised-vs-general rows render the scenes' own materials ("file"): with the Fig. 6 overrides
 every scene has lights, mirrors and glass, and the two kernels would be one.
 """
@@ -136,19 +138,26 @@ def bench_shadows(scene: Scene, backend, mode: str, size: int, repeats: int = 10
 
 def bench_bounces(scene: Scene, backend, bounces: int, size: int, repeats: int = 10, check_size: int = 128,
                   variant: Variant | None = None, materials: str = "paper", shadows: str = "one-pass") -> ShadingRow:
-    """Table 5, bounce columns: the kernel tree at ``bounces``, without and with compaction."""
+    """Table 5, bounce columns: the kernel tree at ``bounces``, without and with compaction, and the
+    wavefront schedule."""
     variant = variant or Variant()
     scene = _with_materials(scene, materials)
     plain = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
                            warmup=2)
     compact = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, compact=True,
                              repeats=repeats, warmup=2)
+    wave = (render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
+                           warmup=2, schedule="wavefront") if shadows != "two-pass" else None)
     error = _check(scene, backend, variant, check_size, shadows=shadows, bounces=bounces)
     row = _row("bounces", scene, f"{bounces} bounce{'s' if bounces > 1 else ''}", backend, plain,
                PAPER_BOUNCE_FPS.get(scene.name, {}).get(bounces), error)
     row.extra.update(compact_ms=compact.median_ms, compact_fps=compact.fps, compact_launches=len(compact.launches),
                      compact_rays=compact.rays_launched(), same_image=bool(np.array_equal(plain.image, compact.image)),
                      depth=plain.depth)
+    if wave is not None:
+        row.extra.update(wave_ms=wave.median_ms, wave_fps=wave.fps, wave_launches=len(wave.launches),
+                         wave_rays=wave.rays_launched(),
+                         wave_max_diff=int(np.abs(wave.image.astype(int) - plain.image).max()))
     return row
 
 
@@ -197,14 +206,17 @@ def table5_markdown(rows: list[ShadingRow], command: str) -> str:
         out.append("")
     bounces = [r for r in rows if r.table == "bounces"]
     if bounces:
-        out += ["| scene | bounces | size | ms | fps | paper fps | compacted fps | launches (compacted) | "
-                "rays (compacted) | regs | occupancy | error |",
-                "|---|---|---:|---:|---:|---:|---:|---|---|---|---|---|"]
+        out += ["| scene | bounces | size | ms | fps | paper fps | compacted fps | wavefront fps | "
+                "launches (compacted, wavefront) | rays (compacted, wavefront) | regs | occupancy | error |",
+                "|---|---|---:|---:|---:|---:|---:|---:|---|---|---|---|---|"]
         for r in bounces:
             e = r.extra
+            wave = (f"{e['wave_fps']:,.1f} (image ±{e['wave_max_diff']})", f", {e['wave_launches']}",
+                    f", {e['wave_rays']:,}") if "wave_fps" in e else ("-", "", "")
             out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | {r.paper_fps or '-'} | "
-                       f"{e['compact_fps']:,.1f} | {r.launches} ({e['compact_launches']}) | "
-                       f"{r.rays:,} ({e['compact_rays']:,}) | {r.regs_text()} | {r.occupancy_text()} | {r.error_text()} |")
+                       f"{e['compact_fps']:,.1f} | {wave[0]} | {r.launches} ({e['compact_launches']}{wave[1]}) | "
+                       f"{r.rays:,} ({e['compact_rays']:,}{wave[2]}) | {r.regs_text()} | {r.occupancy_text()} | "
+                       f"{r.error_text()} |")
         out.append("")
     spec = [r for r in rows if r.table == "specialised"]
     if spec:

@@ -52,6 +52,9 @@
 #ifndef RT_TWO_PASS                /* 1: tree kernels only trace; a shading kernel follows each */
 #define RT_TWO_PASS 0
 #endif
+#ifndef RT_WAVEFRONT               /* 1: one launch per level over a ray queue (rt_wavefront.h) */
+#define RT_WAVEFRONT 0
+#endif
 #define RT_MIN_WEIGHT (1.0f / 512.0f)  /* sync with rtlab/scene/materials.py MIN_WEIGHT */
 #define RT_RAY_REFLECTION 0
 #define RT_RAY_REFRACTION 1
