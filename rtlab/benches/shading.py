@@ -197,37 +197,39 @@ def table5_markdown(rows: list[ShadingRow], command: str) -> str:
            f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", ""]
     shadows = [r for r in rows if r.table == "shadows"]
     if shadows:
-        out += ["| scene | shadows | size | ms | fps | paper fps | regs | paper regs | occupancy | paper occ. | error |",
-                "|---|---|---:|---:|---:|---:|---|---:|---|---:|---|"]
+        out += ["| scene | backend | shadows | size | ms | fps | paper fps | regs | paper regs | occupancy | paper occ. | error |",
+                "|---|---|---|---:|---:|---:|---:|---|---:|---|---:|---|"]
         for r in shadows:
-            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
+            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
                        f"{r.paper_fps or '-'} | {r.regs_text()} | {PAPER_REGISTERS[r.mode]} | {r.occupancy_text()} | "
                        f"{PAPER_OCCUPANCY[r.mode]} | {r.error_text()} |")
         out.append("")
     bounces = [r for r in rows if r.table == "bounces"]
     if bounces:
-        out += ["| scene | bounces | size | ms | fps | paper fps | compacted fps | wavefront fps | "
+        out += ["| scene | backend | bounces | size | ms | fps | paper fps | compacted fps | wavefront fps | "
                 "launches (compacted, wavefront) | rays (compacted, wavefront) | regs | occupancy | error |",
-                "|---|---|---:|---:|---:|---:|---:|---:|---|---|---|---|---|"]
+                "|---|---|---|---:|---:|---:|---:|---:|---:|---|---|---|---|---|"]
         for r in bounces:
             e = r.extra
             wave = (f"{e['wave_fps']:,.1f} (image ±{e['wave_max_diff']})", f", {e['wave_launches']}",
                     f", {e['wave_rays']:,}") if "wave_fps" in e else ("-", "", "")
-            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | {r.paper_fps or '-'} | "
-                       f"{e['compact_fps']:,.1f} | {wave[0]} | {r.launches} ({e['compact_launches']}{wave[1]}) | "
+            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
+                       f"{r.paper_fps or '-'} | {e['compact_fps']:,.1f} | {wave[0]} | {r.launches} ({e['compact_launches']}{wave[1]}) | "
                        f"{r.rays:,} ({e['compact_rays']:,}{wave[2]}) | {r.regs_text()} | {r.occupancy_text()} | "
                        f"{r.error_text()} |")
         out.append("")
     spec = [r for r in rows if r.table == "specialised"]
     if spec:
-        out += ["| scene | kernel | size | depth | ms | fps | regs | occupancy | defines | image |",
-                "|---|---|---:|---:|---:|---:|---|---|---|---|"]
+        out += ["| scene | backend | kernel | size | depth | ms | fps | regs | occupancy | defines | image |",
+                "|---|---|---|---:|---:|---:|---:|---|---|---|---|"]
         for r in spec:
             d = r.extra["defines"]
             flags = " ".join(f"{k[3:].lower()}={v}" for k, v in d.items())
-            out.append(f"| {r.scene} | {r.mode} | {r.size}² | {r.extra['depth']} | {r.median_ms:.3f} | {r.fps:,.1f} | "
+            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.extra['depth']} | {r.median_ms:.3f} | {r.fps:,.1f} | "
                        f"{r.regs_text()} | {r.occupancy_text()} | {flags} | {_mark(r.extra['same_image'])} |")
         out.append("")
     out.append("Registers and occupancy per kernel in launch order (shadows: render_shadows, or "
-               "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction).")
+               "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction). "
+               "Wavefront: one launch per level (rtlab.whitted, beyond the paper); ±N: its image's largest "
+               "8-bit difference from the tree's.")
     return "\n".join(out) + "\n"
