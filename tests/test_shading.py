@@ -485,3 +485,16 @@ def test_student_regions_are_marked():
         body = text[text.index(f" {fn}("):]
         body = body[body.index("{"):body.index("\n}\n")]
         assert body.count("/* BEGIN SOLUTION */") == 1 and body.count("/* END SOLUTION */") == 1, fn
+
+
+def test_table5_bounce_rows_measure_every_schedule(backend, glass):
+    """`rtlab bench shading`'s bounce rows: the tree, compacted, and the wavefront schedule, each
+    row naming its backend, the wavefront image within one 8-bit step of the tree's."""
+    from rtlab.benches.shading import bench_bounces, table5_markdown
+    row = bench_bounces(glass, backend, 2, size=32, repeats=1, check_size=16, materials="file")
+    e = row.extra
+    assert e["same_image"] and e["wave_max_diff"] <= 1
+    assert e["wave_launches"] == 4 and e["compact_launches"] == row.launches == 8
+    assert 0 < e["wave_rays"] <= e["compact_rays"] < row.rays
+    md = table5_markdown([row], "test")
+    assert "wavefront fps" in md and f"| {row.backend} | 2 bounces |" in md
