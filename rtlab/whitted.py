@@ -166,8 +166,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     result = WhittedResult(runner.image(), frames, float(np.median(walls)), launches,
                            {k: program.resources(k, runner.block(k)).as_dict() for k in runner.kernels()},
                            program.defines, step, shadows, int(bounces), extra["RT_MAX_DEPTH"],
-                           bool(compact and tree and not wavefront), schedule, backend.name, backend.device_name,
-                           variant)
+                           bool(extra.get("RT_COMPACT", 0)), schedule, backend.name, backend.device_name, variant)
     if write_hits:
         t, tri, u, v = runner.primary_hits()
         result.hits = TraceResult(t, tri, u, v, result.median_ms, backend.name, backend.device_name)
@@ -176,7 +175,22 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
 
 
 class _Frame:
-    """What every frame runner shares: the packed RGBA8 pixels of the last frame."""
+    """What every frame runner shares: the program and its scene arguments, the launch shapes (the
+    variant's 2D block for pixel kernels, as many threads in 1D for ray kernels) and the packed
+    RGBA8 pixels of the last frame."""
+    PIXEL_KERNELS = ()
+
+    def __init__(self, backend, program, scene_args, camera, variant, write_hits):
+        self.backend, self.program, self.args, self.camera = backend, program, scene_args, camera
+        self.block2d = variant.block
+        self.block1d = (variant.block[0] * variant.block[1],)
+        self.n = camera.width * camera.height
+        self.write_hits = write_hits
+        self.pixels = backend.empty(4 * self.n)
+        self.tree: dict | None = None
+
+    def block(self, kernel):
+        return self.block2d if kernel in self.PIXEL_KERNELS else self.block1d
 
     def image(self) -> np.ndarray:
         rgba = self.backend.to_host(self.pixels, np.uint32, self.n)
@@ -186,20 +200,15 @@ class _Frame:
 class _ShadowFrame(_Frame):
     """Lab step 04: one frame of one-pass (or no) shadows, or two-pass shadows."""
 
+    PIXEL_KERNELS = ("render_shadows", "trace_primary_hits", "shade_hits")
+
     def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
-        self.backend, self.program, self.args, self.camera = backend, program, scene_args, camera
-        self.block2d = variant.block
+        super().__init__(backend, program, scene_args, camera, variant, write_hits)
         self.two_pass = shadows == "two-pass"
-        self.n = camera.width * camera.height
-        self.pixels = backend.empty(4 * self.n)
         self.hits = backend.empty(HIT_DTYPE.itemsize * self.n if (self.two_pass or write_hits) else 4)
-        self.tree = None
 
     def kernels(self) -> list[str]:
         return ["trace_primary_hits", "shade_hits"] if self.two_pass else ["render_shadows"]
-
-    def block(self, kernel):
-        return self.block2d
 
     def frame(self) -> list[Launch]:
         size = (self.camera.width, self.camera.height)
@@ -230,21 +239,17 @@ class _Level:
 class _TreeFrame(_Frame):
     """Lab step 05: one frame of the kernel tree, walked depth-first from the host."""
 
+    PIXEL_KERNELS = ("trace_primary_tree",)
+
     def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
-        self.backend, self.program, self.args, self.camera = backend, program, scene_args, camera
-        self.block2d = variant.block
-        self.block1d = (variant.block[0] * variant.block[1],)
-        self.n = camera.width * camera.height
+        super().__init__(backend, program, scene_args, camera, variant, write_hits)
         self.depth = defines["RT_MAX_DEPTH"]
         self.compact = bool(defines["RT_COMPACT"])
         self.two_pass = bool(defines["RT_TWO_PASS"])
-        self.write_hits = write_hits
         self.kinds = [(letter, kernel) for letter, kernel, define in KINDS if program.defines.get(define, 1)]
         self.frame_rgb = backend.empty(16 * self.n)
-        self.pixels = backend.empty(4 * self.n)
         self.levels = self._tree_buffers()
         self.zero = np.zeros(1, np.int32)
-        self.tree: dict | None = None
         self.primary = None
 
     def _tree_buffers(self) -> list[_Level]:
@@ -258,9 +263,6 @@ class _TreeFrame(_Frame):
     def kernels(self) -> list[str]:
         names = ["trace_primary_tree"] + ([k for _, k in self.kinds] if self.depth > 0 else [])
         return names + (["shade_records"] if self.two_pass else []) + ["pack_frame"]
-
-    def block(self, kernel):
-        return self.block2d if kernel == "trace_primary_tree" else self.block1d
 
     def _out(self, level: int) -> list:
         lv = self.levels[level]
@@ -350,21 +352,17 @@ class _WavefrontFrame(_Frame):
     queue the level above filled. Two queues, the one read and the one filled, alternate; each is
     grown to twice the rays of the level that fills it (a ray appends at most two children)."""
 
+    PIXEL_KERNELS = ("trace_wavefront_primary",)
+
     def __init__(self, backend, program, scene_args, camera, variant, shadows, defines, write_hits):
-        self.backend, self.program, self.args, self.camera = backend, program, scene_args, camera
-        self.block2d = variant.block
-        self.block1d = (variant.block[0] * variant.block[1],)
-        self.n = camera.width * camera.height
+        super().__init__(backend, program, scene_args, camera, variant, write_hits)
         self.depth = defines["RT_MAX_DEPTH"]
-        self.write_hits = write_hits
         self.frame_rgb = backend.empty(16 * self.n)
-        self.pixels = backend.empty(4 * self.n)
         self.hits_cap = self.n if write_hits else 1
         self.hits = backend.empty(16 * self.hits_cap)
         self.queues = [self._queue(2 * self.n if self.depth > 0 else 1) for _ in range(2)]
         self.zero = np.zeros(2, np.int32)
-        self.tree: dict | None = None
-        self.primary = None
+        self.primary_records = None
 
     def _queue(self, cap: int) -> _Queue:
         b = self.backend
@@ -382,9 +380,6 @@ class _WavefrontFrame(_Frame):
 
     def kernels(self) -> list[str]:
         return ["trace_wavefront_primary"] + (["trace_wavefront"] if self.depth > 0 else []) + ["pack_frame"]
-
-    def block(self, kernel):
-        return self.block2d if kernel == "trace_wavefront_primary" else self.block1d
 
     def frame(self) -> list[Launch]:
         launches: list[Launch] = []
@@ -422,7 +417,7 @@ class _WavefrontFrame(_Frame):
         tri = hits[:, 3].view(np.int32)
         if level == 0:
             self.tree["P"] = tri.copy()
-            self.primary = (hits, np.arange(self.n))
+            self.primary_records = hits
             return
         slots = np.concatenate([np.arange(front), src.cap - 1 - np.arange(back)])
         pixel = self.backend.to_host(src.dp, np.float32, 4 * src.cap).reshape(-1, 4)[slots, 3].view(np.int32)
@@ -435,7 +430,7 @@ class _WavefrontFrame(_Frame):
             self.tree[node] = ids
 
     def primary_hits(self):
-        return unpack_hits(self.primary[0])
+        return unpack_hits(self.primary_records)
 
 
 def render_whitted_command(console, scene: Scene, backend, variant: Variant, shadows: str, bounces: int,
