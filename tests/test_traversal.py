@@ -52,7 +52,7 @@ def _scene_from_mesh(name, vertices, faces):
 
 def _use_tree(scene, backend, tree):
     """Trace ``scene`` on ``backend`` with this kd-tree instead of the cached default build."""
-    tracing._device_scenes[(id(scene), id(backend))] = (scene, DeviceScene.upload(backend, scene, tree))
+    tracing.device_scene(scene, backend, tree=tree)
 
 
 def _random_rays(scene, n, seed):
