@@ -131,9 +131,11 @@ def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact:
 def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
                    shadows: str = "one-pass", bounces: int = 0, compact: bool = False, repeats: int = 1,
                    warmup: int = 0, write_hits: bool = False, fresnel: str = "schlick",
-                   specialise: bool = True, device: str | None = None, schedule: str = "tree") -> WhittedResult:
+                   specialise: bool = True, device: str | None = None, schedule: str = "tree",
+                   defines: dict | None = None) -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
-    (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones."""
+    (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones. ``defines``
+    adds or overrides -D switches (e.g. RT_CONSERVATIVE)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     variant = variant or Variant()
@@ -151,6 +153,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     tree = bounces > 0 or wavefront
     step = TREE_STEP if tree else SHADOWS_STEP
     extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree, schedule)
+    extra.update(defines or {})
     program = load_program(backend, step, variant, features, **extra)
     ds.set_constants(program, camera, variant)
     frame_class = _WavefrontFrame if wavefront else _TreeFrame if tree else _ShadowFrame
