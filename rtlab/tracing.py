@@ -80,10 +80,10 @@ def _rays_f32(a, name: str) -> np.ndarray:
 
 
 def _scaled_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Directions whose largest component is outside DIRECTION_RANGE, scaled by a power of two so
-    that it lies in [1, 2): (directions, scale per ray). A power of two changes no rounding, so
-    the kernel traces the very same ray and t = t_kernel * scale exactly; NaN, infinite and zero
-    directions keep scale 1 (they miss)."""
+    """Directions whose largest component is outside DIRECTION_RANGE, divided by a power of two s so
+    that it lies in [1, 2): (directions, s per ray). A power of two changes no rounding, so the
+    kernel traces the very same ray, o + t d = o + (t s) (d / s): its interval is (tmin s, tmax s)
+    and t = t_kernel / s exactly. NaN, infinite and zero directions keep s = 1 (they miss)."""
     largest = np.abs(directions).max(axis=1, initial=0.0).astype(np.float64)
     low, high = DIRECTION_RANGE
     rescale = np.isfinite(largest) & (largest > 0.0) & ((largest < low) | (largest > high))
@@ -141,14 +141,14 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
         features = replace(features, stack_size=int(min_stack_size))
     program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
     ds.set_constants(program, None, variant)
-    o_buf = backend.to_device(float4_rows(origins, lo / scale))
-    d_buf = backend.to_device(float4_rows(directions, hi / scale))
+    o_buf = backend.to_device(float4_rows(origins, lo * scale))
+    d_buf = backend.to_device(float4_rows(directions, hi * scale))
     h_buf = backend.empty(n * HIT_DTYPE.itemsize)
     ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
                         ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     if np.any(scale != 1.0):
-        t = (t * scale).astype(np.float32)
+        t = (t / scale).astype(np.float32)
     return TraceResult(t, tri, u, v, ms, backend.name, backend.device_name)
 
 
