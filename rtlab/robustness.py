@@ -26,9 +26,10 @@ Issue 13 added three:
     zero component) lying in its planes, zeros of both signs; a 1e-3 sphere in a 1e5 room, rays
     from inside the sphere: **misses** and **leaks** (the BVH's fused box test, RT_BVH_BOX_FMA, on
     near the origin: it must keep what the exact box test keeps).
-11. ``glass_far``: the glass scene (:func:`rtlab.scene.materials.glass_scene`) moved to offsets 0 and
-    1e1..1e5, rendered with shadows and 3 bounces against the float64 Whitted reference: **pixels
-    more than 16/255 off** (spawn offsets too small give acne, too large speckles far away).
+11. ``spawn_offsets``: the glass scene (:func:`rtlab.scene.materials.glass_scene`) moved to offsets 0
+    and 1e1..1e5, and spheres on a 2000-wide mirror floor at the origin, rendered with shadows and 3
+    bounces against the float64 Whitted reference: **pixels more than 16/255 off** (spawn offsets
+    too small give acne on large triangles, too large ones speckle scenes far from the origin).
 12. ``dir_lengths``: the same rays with directions of length 1e-30..1e30: **mismatches** (trace()
     scales directions by powers of two; t comes back in the caller's units).
 
@@ -77,7 +78,7 @@ ROBUST_STACK_SIZE = 64
 TIE_ULPS = 16.0
 
 FAMILY_NAMES = {1: "sphere", 2: "plane", 3: "splits", 4: "stairs", 5: "stairs_scaled", 6: "slivers",
-                7: "grazing", 8: "bad_rays", 9: "random", 10: "box_planes", 11: "glass_far", 12: "dir_lengths"}
+                7: "grazing", 8: "bad_rays", 9: "random", 10: "box_planes", 11: "spawn_offsets", 12: "dir_lengths"}
 # count -> families where the watertight test with the conservative traversal must reach 0
 GOALS = {"leaks": (1, 2, 10), "misses": (1, 2, 10), "mismatches": (3, 4, 5, 9, 10, 12), "false_hits": (6, 8),
          "nan_t": tuple(range(1, 13)), "failures": tuple(range(1, 13))}
@@ -94,12 +95,12 @@ SIZES = {
     "test": dict(sphere_subdiv=4, sphere_rays=5000, plane_quads=8, plane_rays=5000, split_rays=1500,
                  stairs_grid=43, scaled_grid=22, slivers=60, sliver_rays=1500, grazing_rays=1500,
                  bad_ray_sets=4, random_rays=1500, random_scenes=("bunny",), grid_cubes=3, plane_rays_axis=1500,
-                 room_rays=1500, glass_size=48, length_rays=300),
+                 room_rays=1500, glass_size=40, glass_offsets=(0.0, 1e1, 1e3, 1e4, 1e5), length_rays=300),
     "bench": dict(sphere_subdiv=5, sphere_rays=100_000, plane_quads=64, plane_rays=50_000,
                   split_rays=50_000, stairs_grid=127, scaled_grid=127, slivers=2000, sliver_rays=50_000,
                   grazing_rays=50_000, bad_ray_sets=40, random_rays=100_000,
                   random_scenes=("bunny", "sponza"), grid_cubes=6, plane_rays_axis=50_000, room_rays=50_000,
-                  glass_size=128, length_rays=10_000),
+                  glass_size=128, glass_offsets=GLASS_OFFSETS, length_rays=10_000),
 }
 
 
@@ -633,19 +634,45 @@ def moved_scene(scene: Scene, offset) -> Scene:
                  scene.material_ids, scene.materials, camera, lights, scene.vertex_normals, scene.source)
 
 
-def family_glass_far(size: int, offsets=GLASS_OFFSETS) -> list[Case]:
+def mirror_floor_scene(size: int, half: float = 1000.0) -> Scene:
+    """Spheres (glass, chrome) and a box on a 2 half-wide floor of two triangles that half-mirrors,
+    lit from low and from high: shadow and reflection rays leave points of huge triangles near the
+    origin, where a spawn offset below the triangle test's t error shows as acne."""
+    import trimesh
+    floor = _quads(np.array([[[-half, 0, -half], [-half, 0, half], [half, 0, half], [half, 0, -half]]], float))
+    glass = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    glass.apply_translation([0.0, 1.0, 0.0])
+    chrome = trimesh.creation.icosphere(subdivisions=3, radius=0.7)
+    chrome.apply_translation([1.8, 0.7, -0.5])
+    box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+    box.apply_translation([-1.7, 0.5, -0.3])
+    parts = [floor, (glass.vertices, glass.faces), (chrome.vertices, chrome.faces), (box.vertices, box.faces)]
+    v, f = _merge(parts)
+    ids = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]).astype(np.int32)
+    materials = [Material("floor", diffuse=(0.7, 0.7, 0.7), specular=(0.3, 0.3, 0.3), shininess=30.0, reflectivity=0.5),
+                 Material("glass", diffuse=(0.9, 0.95, 1.0), specular=(0.8, 0.8, 0.8), shininess=80.0,
+                          transparency=0.9, ior=1.5),
+                 Material("chrome", diffuse=(0.7, 0.7, 0.7), reflectivity=0.85),
+                 Material("red", diffuse=(0.8, 0.2, 0.2))]
+    camera = Camera((0.3, 1.6, 5.5), (0.0, 0.6, 0.0), fov_deg=50.0, width=size, height=size)
+    return Scene(f"mirror_floor_{2 * half:g}", _f32(v), f.astype(np.int32), ids, materials, camera,
+                 [Light((6.0, 0.8, 3.0), intensity=0.9), Light((-5.0, 6.0, 2.0), intensity=0.5)], None, "procedural")
+
+
+def family_spawn_offsets(size: int, offsets=GLASS_OFFSETS) -> list[Case]:
     """11. The glass scene (a glass sphere and cube, a chrome ball, a checker floor) moved by
-    (s, s/2, -s) for s in ``offsets``, rendered size x size with shadows and GLASS_BOUNCES bounces:
-    pixels more than PIXEL_OFF/255 off the float64 Whitted reference."""
+    (s, s/2, -s) for s in ``offsets``, and the mirror floor scene at the origin, rendered size x size
+    with shadows and GLASS_BOUNCES bounces: pixels more than PIXEL_OFF/255 off the float64 Whitted
+    reference."""
     from .scene.materials import glass_scene
     from .tracing import camera_rays
     base = glass_scene(size)
+    scenes = [(f"glass scene at {s:g}", moved_scene(base, (s, 0.5 * s, -s))) for s in offsets]
+    scenes.append(("mirror floor 2000 wide at the origin", mirror_floor_scene(size)))
     cases = []
-    for s in offsets:
-        scene = moved_scene(base, (s, 0.5 * s, -s))
+    for label, scene in scenes:
         o, d = camera_rays(scene.camera)
-        cases.append(Case(11, f"glass scene at {s:g}", scene, o, d, ("px_off",),
-                          render={"bounces": GLASS_BOUNCES}))
+        cases.append(Case(11, label, scene, o, d, ("px_off",), render={"bounces": GLASS_BOUNCES}))
     return cases
 
 
@@ -690,7 +717,7 @@ def _family_cases(family: int, size: str) -> list[Case]:
         8: lambda: family_bad_rays(s["bad_ray_sets"]),
         9: lambda: family_random(s["random_rays"], s["random_scenes"]),
         10: lambda: family_box_planes(s["plane_rays_axis"], s["grid_cubes"], s["room_rays"]),
-        11: lambda: family_glass_far(s["glass_size"]),
+        11: lambda: family_spawn_offsets(s["glass_size"], s["glass_offsets"]),
         12: lambda: family_dir_lengths(s["length_rays"]),
     }
     if family not in makers:
