@@ -653,3 +653,33 @@ def test_direction_length_does_not_change_the_answer(backend, variant):
         ref = reference_trace(scene.vertices, scene.faces, o, dl)
         c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, dl)
         assert c.n_mismatch == 0 and c.t_rel_err_max <= T_REL_TOL, f"length {length:g}: {c.summary()}"
+
+
+@pytest.mark.gpu
+def test_gpu_ties_and_box_planes_agree_across_cuda_and_nvidia_opencl(duplicated_scene):
+    """On the GPU machine (fused multiply-adds in hardware, not PoCL's): exact ties go to the lowest
+    copy, rays lying in the planes of a cube grid near the origin keep their hits with the BVH's
+    fused box test, and with the watertight test CUDA and NVIDIA OpenCL name the same triangles."""
+    from rtlab.backends import get_backend
+    backends = [get_backend("cuda"), get_backend("opencl", "NVIDIA")]
+    scene, o, d, lowest = duplicated_scene
+    grid = _cube_grid(4, -2)
+    planes = np.arange(-2, 3, dtype=np.float32)
+    gy, gz = np.meshgrid(planes, planes, indexing="ij")
+    go = np.stack([np.full(gy.size, -3.0, np.float32), gy.ravel(), gz.ravel()], 1)
+    go = np.concatenate([go, go])
+    gd = np.zeros_like(go)
+    gd[:, 0] = 1.0
+    gd[len(gd) // 2:, 1:] = np.float32(-0.0)
+    ids = {}
+    for be in backends:
+        for traversal in ["stack"] + VARIANTS:
+            for isect in ISECTS:
+                got = trace(scene, o, d, backend=be, variant=Variant(traversal, isect))
+                hit = got.tri >= 0
+                assert np.array_equal(got.tri[hit], lowest[got.tri[hit]]), f"{be.name} {traversal}/{isect}"
+                ids[be.name, traversal, isect] = got.tri
+        box = trace(grid, go, gd, backend=be, variant=Variant("bvh", "moller"))
+        assert np.all(box.tri >= 0), f"{be.name}: {np.sum(box.tri < 0)} rays in box planes lost"
+    for traversal in ["stack"] + VARIANTS:
+        assert np.array_equal(ids["cuda", traversal, "watertight"], ids["opencl", traversal, "watertight"]), traversal
