@@ -105,7 +105,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
            repeats: int = typer.Option(5, help="timed launches (median reported)"),
            traversal: str = typer.Option("stack", help="kd-tree traversal variant"),
-           isect: str = typer.Option("moller", help="triangle intersection test"),
+           isect: str = typer.Option("watertight", help="triangle intersection test (the paper's: moller)"),
            block: str = typer.Option("32x4", help="block / work-group shape WxH"),
            shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
            bounces: Optional[int] = typer.Option(None, help="reflection/refraction bounces (kernel tree)"),

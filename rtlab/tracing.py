@@ -25,6 +25,12 @@ DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its bu
 # [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
 # read as a zero direction), above it products with coordinates overflow.
 DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
+# What trace(), render() and render_whitted() run when no variant is named: the stack traversal with
+# the watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through
+# shared edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 11-24 % of the
+# rays aimed at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13).
+# The lab steps and the paper's benches name their variants and keep the paper's.
+DEFAULT_VARIANT = Variant(intersection="watertight")
 
 
 def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
@@ -120,7 +126,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     wins, in every traversal and triangle test, so all variants report the same triangle at a tie
     (a shared edge or vertex, duplicated triangles). Rays with NaN/Inf components or a zero
     direction are reported as misses. ``tmin``, ``tmax``: scalars or one per ray; tmin must be
-    >= 0 (a RtlabError otherwise). ``backend`` is a Backend or a name ("opencl", "cuda").
+    >= 0 (a RtlabError otherwise). ``variant`` None: DEFAULT_VARIANT (watertight; a Variant you
+    name keeps its own test). ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths."""
     origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
@@ -130,7 +137,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     lo, hi = _ray_bounds(tmin, tmax, n)
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or Variant()
+    variant = variant or DEFAULT_VARIANT
     ds = device_scene(scene, backend)
     if n == 0:
         empty = np.zeros(0, np.float32)

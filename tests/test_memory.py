@@ -70,7 +70,7 @@ def test_trace_rays_through_placements(backend, default_scene):
     lo, hi = default_scene.vertices.min(0), default_scene.vertices.max(0)
     o = rng.uniform(lo, hi, (3000, 3)).astype(np.float32)
     d = rng.normal(size=(3000, 3)).astype(np.float32)
-    base = rtlab.trace(default_scene, o, d, backend)
+    base = rtlab.trace(default_scene, o, d, backend, Variant())
     assert base.hit.sum() > 300
     for v in placements(backend):
         r = rtlab.trace(default_scene, o, d, backend, v)

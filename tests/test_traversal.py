@@ -94,7 +94,7 @@ class Case:
     def __init__(self, scene, o, d, backend, t_tol=T_REL_TOL):
         self.scene, self.o, self.d, self.t_tol = scene, o, d, t_tol
         self.ref = reference_trace(scene.vertices, scene.faces, o, d)
-        self.stack = trace(scene, o, d, backend=backend)
+        self.stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
 
     def compare(self, got, where):
         s = self.scene
@@ -228,7 +228,7 @@ def test_deep_tree(backend, deep_scene, variant):
     scene, tree, o, d = deep_scene
     _use_tree(scene, backend, tree)
     ref = reference_trace(scene.vertices, scene.faces, o, d)
-    stack = trace(scene, o, d, backend=backend)
+    stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
     got = trace(scene, o, d, backend=backend, variant=variant)
     assert np.mean(stack.tri >= 0) > 0.5
     # Tiny, steep triangles: the float32 test's t is off by up to ~1e-4 (the stack's too), and by
