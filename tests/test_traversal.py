@@ -459,8 +459,9 @@ def test_traversal_step_compiles_for_sm90(variant):
 
 
 def test_fused_box_test_only_for_scenes_near_the_origin():
-    """The BVH's fused slab form (RT_BVH_BOX_FMA) rounds by half an ulp of the origin's
-    coordinates: the loader allows it only where those stay within a few extents of the scene."""
+    """The BVH's fused slab form (RT_BVH_BOX_FMA) pads by the rounding of the origin's coordinates,
+    which loosens its culling far from the origin: the loader takes it only where those stay within
+    a few extents of the scene."""
     from rtlab.device_scene import near_origin, scene_features
     from rtlab.kernels import build_defines
     near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
