@@ -191,8 +191,9 @@ def test_spawn_offsets_neither_acne_nor_speckles(backend):
 
 def test_direction_length_changes_nothing(backend):
     """Family 12: directions of length 1e-30..1e30, every test and traversal: no mismatch, and t
-    in the caller's units within float32 rounding of the reference."""
+    in the caller's units: within 1e-3 of the reference (grazing hits on the tessellated sphere
+    reach 1e-4 at any length, unit length included; a t not scaled back is off by the length)."""
     rows = family_rows(backend, 12)
     bad = [_describe(r) + f", max rel dt {r.t_rel_err_max:.1e}" for r in rows
-           if r.failure or r.mismatches or not r.t_rel_err_max <= 1e-5]
+           if r.failure or r.mismatches or not r.t_rel_err_max <= 1e-3]
     assert not bad, "\n".join(bad)
