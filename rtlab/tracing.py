@@ -27,7 +27,7 @@ DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its bu
 DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # What trace(), render() and render_whitted() run when no variant is named: the stack traversal with
 # the watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through
-# shared edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 11-24 % of the
+# shared edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 13-24 % of the
 # rays aimed at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13).
 # The lab steps and the paper's benches name their variants and keep the paper's.
 DEFAULT_VARIANT = Variant(intersection="watertight")
@@ -123,8 +123,12 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
           defines: dict | None = None, min_stack_size: int = 0) -> TraceResult:
     """Closest hit along each ray o + t d within (tmin, tmax), t in units of |d| (d need not be
     normalised: any finite, non-zero length works). At exactly equal t the lowest triangle id
-    wins, in every traversal and triangle test, so all variants report the same triangle at a tie
-    (a shared edge or vertex, duplicated triangles). Rays with NaN/Inf components or a zero
+    wins, in every traversal and triangle test (as in the float64 reference), so all variants
+    report the same triangle at a tie: duplicated triangles, or two triangles of an edge whose
+    float32 t come out equal. With the watertight test (the default) every traversal returns the
+    very same ids; with the others, where the two t of an edge differ by rounding, the packet and
+    the BVH may report the nearer one the kd-tree's cells hide (a tie by the reference's rule,
+    rtlab.reference.compare_hits). Rays with NaN/Inf components or a zero
     direction are reported as misses. ``tmin``, ``tmax``: scalars or one per ray; tmin must be
     >= 0 (a RtlabError otherwise). ``variant`` None: DEFAULT_VARIANT (watertight; a Variant you
     name keeps its own test). ``backend`` is a Backend or a name ("opencl", "cuda").
