@@ -42,9 +42,10 @@ class TraceResult:
     tri: np.ndarray      # (N,) int32, -1 where missed
     u: np.ndarray
     v: np.ndarray
-    kernel_ms: float     # device time of the tracing kernel
+    kernel_ms: float     # device time of the tracing kernel (median over the timed launches)
     backend: str = ""
     device: str = ""
+    launches_ms: tuple = ()   # each timed launch's device time (``repeats`` of trace())
 
     @property
     def hit(self) -> np.ndarray:
@@ -63,13 +64,30 @@ def _rays_f32(a, name: str) -> np.ndarray:
     return a.astype(np.float32, copy=False)
 
 
+_ray_buffers: dict = {}
+
+
+def ray_buffers(backend, n: int):
+    """Device buffers for n rays and their hits (origins, directions, hits), kept per backend for the
+    most recent ray count: a caller tracing batch after batch of one size allocates once."""
+    key = id(backend)
+    entry = _ray_buffers.get(key)
+    if entry is None or entry[0] is not backend or entry[1] != n:
+        entry = (backend, n, (backend.empty(n * 16), backend.empty(n * 16), backend.empty(n * HIT_DTYPE.itemsize)))
+        _ray_buffers[key] = entry
+    return entry[2]
+
+
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
-          defines: dict | None = None, min_stack_size: int = 0) -> TraceResult:
+          defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,
+          warmup: int = 0) -> TraceResult:
     """Closest hit along each ray within (tmin, tmax). Rays with NaN/Inf components or a zero
     direction are reported as misses. ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
-    stack at least that deep, so one program serves scenes of different depths."""
+    stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
+    many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
+    median device time."""
     origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
@@ -86,13 +104,14 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
         features = replace(features, stack_size=int(min_stack_size))
     program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
     ds.set_constants(program, None, variant)
-    o_buf = backend.to_device(float4_rows(origins, tmin))
-    d_buf = backend.to_device(float4_rows(directions, tmax))
-    h_buf = backend.empty(n * HIT_DTYPE.itemsize)
-    ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
-                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
+    o_buf, d_buf, h_buf = ray_buffers(backend, n)
+    backend.fill(o_buf, float4_rows(origins, tmin))
+    backend.fill(d_buf, float4_rows(directions, tmax))
+    args = ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)]
+    times = [program.launch("trace_rays", (n,), (TRACE_BLOCK,), args, constants=("frame",))
+             for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
-    return TraceResult(t, tri, u, v, ms, backend.name, backend.device_name)
+    return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
 
 
 def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
