@@ -9,6 +9,9 @@ Timings (median of --repeats launches after warm-up, Mrays/s):
   plain       CUDA only: events around pycuda's unprepared call on an idle GPU (rtlab before issue
               12): the host's argument packing and launch latency fall inside the events
   amortised   one event pair around --repeats back-to-back launches, divided by their number
+--sweep times CUDA's trace_rays over nvcc options (--nvcc-options, ';'-separated sets), register caps
+(--max-registers) and block sizes (--blocks) beside OpenCL's, with the mismatches of each against
+the float64 reference subsample: one line per configuration.
 With --ncu the script only launches (for `ncu --kernel-name regex:trace_rays`): no checks, no dumps.
 OpenCL programs' binaries (NVIDIA: PTX) are written to --out for `ptxas -v` / SASS comparison.
 """
@@ -94,6 +97,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=22)
     ap.add_argument("--out", default=os.environ.get("OUT", "."))
     ap.add_argument("--ncu", action="store_true", help="launch only (3 trace() calls a variant), for ncu")
+    ap.add_argument("--sweep", action="store_true", help="sweep CUDA compile options, register caps, blocks")
+    ap.add_argument("--nvcc-options", default=";--prec-div=false --prec-sqrt=false;-use_fast_math")
+    ap.add_argument("--max-registers", default="0,40")
+    ap.add_argument("--blocks", default="64,128,256")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -102,12 +109,47 @@ def main(argv=None) -> int:
     for case in a.cases.split(","):
         view, _, kind = case.partition(":")
         batch = make_rays(view, kind or "primary", a.size, check_rays=1 if a.ncu else 65_536)
-        rows += run_case(batch, backends, a, out)
+        rows += sweep_case(batch, backends, a) if a.sweep else run_case(batch, backends, a, out)
     if rows:
         with open(out / "profile_trace.jsonl", "a") as f:
             for r in rows:
                 f.write(json.dumps(r) + "\n")
     return 0
+
+
+def sweep_case(batch, backends, a) -> list[dict]:
+    import rtlab.tracing as tracing
+    from rtlab.reference import compare_hits
+    rows = []
+    idx = batch.check_index
+    for be in backends:
+        option_sets = a.nvcc_options.split(";") if be.name == "cuda" else [""]
+        for opts in option_sets:
+            os.environ["RTLAB_NVCC_OPTIONS"] = opts
+            for trav in a.traversals.split(","):
+                for cap in (int(c) for c in a.max_registers.split(",")):
+                    if cap and be.name != "cuda":
+                        continue
+                    variant = Variant(traversal=trav, max_registers=cap)
+                    for block in (int(b) for b in a.blocks.split(",")):
+                        tracing.TRACE_BLOCK = block
+                        res = trace(batch.scene, batch.origins, batch.directions, be, variant,
+                                    repeats=a.repeats, warmup=3)
+                        cmp = compare_hits(batch.reference, res.tri[idx], res.t[idx], batch.scene.vertices,
+                                           batch.scene.faces, batch.origins[idx], batch.directions[idx])
+                        row = {"view": batch.view, "kind": batch.kind, "backend": be.name, "options": opts,
+                               "traversal": trav, "maxrreg": cap, "block": block, "ms": round(res.kernel_ms, 4),
+                               "mrays": round(batch.n / (res.kernel_ms * 1e-3) / 1e6),
+                               "mismatches": cmp.n_mismatch}
+                        if be.name == "cuda":
+                            program = load_program(be, primary_step(variant), variant,
+                                                   device_scene(batch.scene, be).features(variant))
+                            row["registers"] = program.resources("trace_rays").registers
+                        rows.append(row)
+                        print(json.dumps(row), flush=True)
+    os.environ.pop("RTLAB_NVCC_OPTIONS", None)
+    tracing.TRACE_BLOCK = 128
+    return rows
 
 
 def run_case(batch, backends, a, out) -> list[dict]:

@@ -201,15 +201,13 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        key = (str(path), tuple(sorted(defines.items())), tuple(options))
+        options = tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
+        key = (str(path), tuple(sorted(defines.items())), options)
         if key in self._programs:
             return self._programs[key]
         text = Path(path).read_text()
         source = f'#line 1 "{path}"\n{text}'
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)
-        extra = os.environ.get("RTLAB_NVCC_OPTIONS")
-        if extra:
-            flags += extra.split()
         try:
             module = SourceModule(source, options=flags, include_dirs=[str(SHARED_KERNEL_DIR), str(Path(path).parent)],
                                   no_extern_c=True, arch=self.arch)
