@@ -7,17 +7,17 @@ set -u
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"; L=$(mktemp -d)
 export PYTHONUNBUFFERED=1
 CASES=${CASES:-bunny/far:primary,bunny/fill:primary,sponza/inside:primary,conference/inside:primary,sponza/inside:diffuse,conference/inside:diffuse}
-common="--sweep --cases $CASES --backends cuda,opencl:NVIDIA --nvcc-options= --max-registers 0 --blocks 128"
-[ -d .ab/base ] && (cd .ab/base && PYTHONPATH=$PWD:$PYTHONPATH python benchmarks/profile_trace.py $common --traversals bvh --label base --out "$L" >> "$L/ab.txt" 2>&1)
+common="--sweep --cases $CASES --traversals bvh --backends cuda,opencl:NVIDIA --nvcc-options= --max-registers 0 --blocks 128"
+[ -d .ab/base ] && (cd .ab/base && PYTHONPATH=$PWD:$PYTHONPATH python benchmarks/profile_trace.py $common --label base --out "$L" >> "$L/ab.txt" 2>&1)
 sets=("$@"); [ ${#sets[@]} -eq 0 ] && sets=("")
 for b in "${sets[@]}"; do
-  python benchmarks/profile_trace.py $common --traversals ${TRAVERSALS:-bvh,bvh4} --label new --bvh "$b" --out "$L" >> "$L/ab.txt" 2>&1
+  python benchmarks/profile_trace.py $common --label new --bvh "$b" --out "$L" >> "$L/ab.txt" 2>&1
 done
 tar czf "$OUT/ab.tgz" -C "$L" .
 grep -h '^{' "$L/ab.txt" | python -c '
 import json, sys
 for l in sys.stdin:
     r = json.loads(l)
-    print("%-5s %-5s %-22s %-18s %-8s %-6s %6d Mrays/s regs %s mism %d" % (r["label"], r["traversal"], r["bvh"] or "-", r["view"], r["kind"],
+    print("%-5s %-22s %-18s %-8s %-6s %6d Mrays/s regs %s mism %d" % (r["label"], r["bvh"] or "-", r["view"], r["kind"],
           r["backend"], r["mrays"], r.get("registers", "-"), r["mismatches"]))'
 grep -h -i "error\|traceback" "$L/ab.txt" | head -5

@@ -14,7 +14,7 @@ from .paths import KERNEL_DIR
 
 # name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
 # here once its kernels exist in both languages.
-TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5, "bvh4": 6}
+TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5}
 INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
 NODE_MEMORY = {"global": 0, "texture": 1}
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
@@ -159,7 +159,7 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
-    if variant.traversal in ("bvh", "bvh4"):
+    if variant.traversal == "bvh":
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block

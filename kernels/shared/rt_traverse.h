@@ -23,9 +23,6 @@
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH
 #include "rt_bvh.h"
 #define RT_TRAVERSE_RAY traverse_bvh
-#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH4
-#include "rt_bvh_wide.h"
-#define RT_TRAVERSE_RAY traverse_bvh4
 #elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #ifndef RT_PACKET_KERNELS
 #error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.kernels.primary_step)"
