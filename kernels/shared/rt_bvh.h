@@ -24,7 +24,6 @@
 #define BVH_LEAF_BITS 4            /* at most 15 triangles a leaf (sync with rtlab/accel/bvh.py) */
 #define BVH_NODE_STRIDE 4
 #define BVH_TRI_STRIDE 3           /* float4 rows of an inline leaf triangle */
-#define BVH_DONE 0x7fffffff        /* traversal ref: nothing left to visit (above every node index) */
 
 /* The inverse direction the fused box test uses (Aila & Laine): a zero component is replaced by
  * 2^-64 of its sign, so the inverse stays finite and b inv - o inv keeps the sign of b - o (times
@@ -116,14 +115,11 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
     float3 o_inv = hadamard3(ray->o, inv);
     BvhStackEntry stack[RT_STACK_SIZE];
     int sp = 0;
-    int ref = 0;        /* next node: an inner node (>= 0, not BVH_DONE), a leaf (< 0), or BVH_DONE */
-    int leaf = 0;       /* a leaf found and put off (< 0), or 0 */
+    int ref = 0;
     for (;;) {
         /* Inner nodes: take the nearer child hit, push the farther with its entry distance; pop
-         * when neither is hit. A thread that finds a leaf puts it off and walks on until every
-         * thread of its warp holds one (speculative traversal, Aila & Laine 2009): the warp then
-         * tests leaves together instead of idling while its slowest thread searches. */
-        while (ref >= 0 && ref != BVH_DONE) {
+         * when neither is hit */
+        while (ref >= 0) {
             int base = BVH_NODE_STRIDE * ref;
             float4 a = load_node_data(base);
             float4 b = load_node_data(base + 1);
@@ -142,28 +138,11 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
             } else if (hit0 || hit1) {
                 ref = hit0 ? c0 : c1;
             } else if (!bvh_pop(stack, &sp, hit->t, &ref)) {
-                ref = BVH_DONE;
-            }
-            if (ref < 0 && leaf == 0) {
-                leaf = ref;
-                if (!bvh_pop(stack, &sp, hit->t, &ref))
-                    ref = BVH_DONE;
-            }
-            if (!rt_warp_any(leaf == 0))
-                break;
-        }
-        /* The leaf put off, then the one the walk stopped on, if it stopped on a leaf */
-        while (leaf < 0) {
-            if (intersect_bvh_leaf(RT_SCENE_ARGS, leaf, ray, hit, any_hit))
                 return;
-            leaf = 0;
-            if (ref < 0) {
-                leaf = ref;
-                if (!bvh_pop(stack, &sp, hit->t, &ref))
-                    ref = BVH_DONE;
             }
         }
-        if (ref == BVH_DONE)
+        /* A leaf, then the next subtree not behind the closest hit */
+        if (intersect_bvh_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit) || !bvh_pop(stack, &sp, hit->t, &ref))
             return;
     }
     /* END SOLUTION */

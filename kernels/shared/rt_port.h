@@ -86,10 +86,6 @@
 #define rt_isfinite isfinite
 RT_FN float3 f3(float x, float y, float z) { return make_float3(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z, w); }
-/* Whether p holds for any thread of the warp running this code together (a vote: the speculative
- * BVH traversal, rt_bvh.h). OpenCL C 1.2 has no warp vote: there each work-item answers for
- * itself, which gives the same results with the plain schedule. */
-#define rt_warp_any(p) __any_sync(__activemask(), (p))
 #else /* OpenCL C */
 #define RT_FN static inline
 #define RT_KERNEL __kernel
@@ -110,7 +106,6 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 #define rt_isfinite isfinite
 RT_FN float3 f3(float x, float y, float z) { return (float3)(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return (float4)(x, y, z, w); }
-#define rt_warp_any(p) (p)
 #endif
 
 /* ---- Vector helpers (OpenCL has operators on float3, CUDA does not: use these everywhere) ---- */
