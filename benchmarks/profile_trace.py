@@ -101,14 +101,7 @@ def main(argv=None) -> int:
     ap.add_argument("--nvcc-options", default=";--prec-div=false --prec-sqrt=false;-use_fast_math")
     ap.add_argument("--max-registers", default="0,40")
     ap.add_argument("--blocks", default="64,128,256")
-    ap.add_argument("--bvh", default="", help="BVH build parameters, e.g. max_leaf_size=4,cost_traversal=1.5")
-    ap.add_argument("--label", default="", help="a tag written into every row (A/B runs)")
     a = ap.parse_args(argv)
-    if a.bvh:
-        from rtlab.accel import bvh
-        params = bvh.BvhBuildParams(**{k: type(getattr(bvh.BvhBuildParams, k))(v) for k, v in
-                                       (kv.split("=") for kv in a.bvh.split(","))})
-        bvh.load_or_build_bvh.__defaults__ = (params, None)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -144,8 +137,7 @@ def sweep_case(batch, backends, a) -> list[dict]:
                                     repeats=a.repeats, warmup=3)
                         cmp = compare_hits(batch.reference, res.tri[idx], res.t[idx], batch.scene.vertices,
                                            batch.scene.faces, batch.origins[idx], batch.directions[idx])
-                        row = {"label": a.label, "bvh": a.bvh, "view": batch.view, "kind": batch.kind,
-                               "backend": be.name, "options": opts,
+                        row = {"view": batch.view, "kind": batch.kind, "backend": be.name, "options": opts,
                                "traversal": trav, "maxrreg": cap, "block": block, "ms": round(res.kernel_ms, 4),
                                "mrays": round(batch.n / (res.kernel_ms * 1e-3) / 1e6),
                                "mismatches": cmp.n_mismatch}

@@ -401,23 +401,10 @@ def test_bvh_invariants():
     assert np.all(seen[-2:] == 0), "a zero-area triangle was referenced"
     assert bvh.depth == max_depth
     assert np.array_equal(bvh.bounds, np.stack([tri_lo[:-2].min(0), tri_hi[:-2].max(0)]))
-    rows = bvh.node_data(v, f)
-    m = bvh.n_nodes
-    node_data = rows[:4 * m].reshape(-1, 4, 4)
-    device_ref = node_data.view(np.int32)[:, 3, :2]
-    inner = bvh.child_ref >= 0
-    assert np.array_equal(device_ref[inner], bvh.child_ref[inner])
+    node_data = bvh.node_data().reshape(-1, 4, 4)
+    assert np.array_equal(node_data.view(np.int32)[:, 3, :2], bvh.child_ref)
     assert np.array_equal(node_data[:, 0, [0, 2]], bvh.child_lo[:, 0, :2])
     assert np.array_equal(node_data[:, 2, [1, 3]], bvh.child_hi[:, :, 2])
-    # Leaves point at their triangles inline after the nodes: corners, and the id in corner 0's w
-    assert len(rows) == 4 * m + 3 * len(bvh.objects)
-    for host, device in zip(bvh.child_ref[~inner], device_ref[~inner]):
-        first, count = decode_leaf(host)
-        row, device_count = decode_leaf(device)
-        assert device_count == count and row == 4 * m + 3 * first
-        tris = rows[row:row + 3 * count].reshape(count, 3, 4)
-        assert np.array_equal(tris.view(np.int32)[:, 0, 3], bvh.objects[first:first + count])
-        assert np.array_equal(tris[:, :, :3], v[f[bvh.objects[first:first + count]]])
 
 
 def test_bvh_cache_round_trip(tmp_path):

@@ -9,12 +9,9 @@
  *   [4 i + 2] = (c0.lo.z, c0.hi.z, c1.lo.z, c1.hi.z)
  *   [4 i + 3] = (ref c0, ref c1, 0, 0)   int bits
  * A child ref >= 0 is an inner node index; a leaf is ~((first << BVH_LEAF_BITS) | count): count
- * triangles stored inline after the nodes, 3 float4 each from node_data[first]: the corners, the
- * triangle id in the first corner's w. A leaf's triangles are read where its node points, with no
- * object-list indirection (a dependent load per triangle less); tests that read precomputed data
- * (Wald, Plucker) take only the id from there. The root is node 0 and always inner (the builder
- * gives a one-leaf tree a second, duplicate leaf). RT_STACK_SIZE is the BVH depth + 1 (set by the
- * loader from AccelArrays.stack_size), so the stack cannot overflow.
+ * triangles from objects[first]. The root is node 0 and always inner (the builder gives a
+ * one-leaf tree a second, duplicate leaf). RT_STACK_SIZE is the BVH depth + 1 (set by the loader
+ * from AccelArrays.stack_size), so the stack cannot overflow.
  */
 #ifndef RT_BVH_H
 #define RT_BVH_H
@@ -23,7 +20,6 @@
 
 #define BVH_LEAF_BITS 4            /* at most 15 triangles a leaf (sync with rtlab/accel/bvh.py) */
 #define BVH_NODE_STRIDE 4
-#define BVH_TRI_STRIDE 3           /* float4 rows of an inline leaf triangle */
 
 /* The inverse direction the fused box test uses (Aila & Laine): a zero component is replaced by
  * 2^-64 of its sign, so the inverse stays finite and b inv - o inv keeps the sign of b - o (times
@@ -68,37 +64,8 @@ RT_FN int intersect_bvh_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit
     int first = bits >> BVH_LEAF_BITS;
     int count = bits & ((1 << BVH_LEAF_BITS) - 1);
     for (int i = 0; i < count; ++i) {
-        int at = first + BVH_TRI_STRIDE * i;
-        float4 v0 = load_node_data(at);
-        int tri = rt_as_int(v0.w);
-#if RT_ISECT_READS_CORNERS
-        int found = intersect_tri_corners(ray, xyz(v0), xyz(load_node_data(at + 1)), xyz(load_node_data(at + 2)),
-                                          tri, hit);
-#else
-        int found = intersect_tri(RT_SCENE_ARGS, ray, tri, hit);
-#endif
-        if (found && any_hit)
+        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(first + i), hit) && any_hit)
             return 1;
-    }
-    return 0;
-}
-
-/* A pending subtree and the distance at which the ray enters its box. */
-typedef struct {
-    int ref;
-    float t;
-} BvhStackEntry;
-
-/* Pop the nearest-pushed subtree the ray still enters before t_hit into *ref; 0 when none is left.
- * Entries behind the closest hit found since they were pushed are dropped unvisited. */
-RT_FN int bvh_pop(BvhStackEntry *stack, int *sp, float t_hit, int *ref)
-{
-    while (*sp > 0) {
-        --*sp;
-        if (stack[*sp].t <= t_hit) {
-            *ref = stack[*sp].ref;
-            return 1;
-        }
     }
     return 0;
 }
@@ -113,12 +80,11 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
         return;
     float3 inv = f3(bvh_inverse(ray->d.x), bvh_inverse(ray->d.y), bvh_inverse(ray->d.z));
     float3 o_inv = hadamard3(ray->o, inv);
-    BvhStackEntry stack[RT_STACK_SIZE];
+    int stack[RT_STACK_SIZE];
     int sp = 0;
     int ref = 0;
     for (;;) {
-        /* Inner nodes: take the nearer child hit, push the farther with its entry distance; pop
-         * when neither is hit */
+        /* Inner nodes: take the nearer child hit, push the farther; pop when neither is hit */
         while (ref >= 0) {
             int base = BVH_NODE_STRIDE * ref;
             float4 a = load_node_data(base);
@@ -131,19 +97,22 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
             int c0 = rt_as_int(c.x), c1 = rt_as_int(c.y);
             if (hit0 && hit1) {
                 int near0 = e0 <= e1;
-                stack[sp].ref = near0 ? c1 : c0;
-                stack[sp].t = near0 ? e1 : e0;
-                ++sp;
+                stack[sp++] = near0 ? c1 : c0;
                 ref = near0 ? c0 : c1;
             } else if (hit0 || hit1) {
                 ref = hit0 ? c0 : c1;
-            } else if (!bvh_pop(stack, &sp, hit->t, &ref)) {
-                return;
+            } else {
+                if (sp == 0)
+                    return;
+                ref = stack[--sp];
             }
         }
-        /* A leaf, then the next subtree not behind the closest hit */
-        if (intersect_bvh_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit) || !bvh_pop(stack, &sp, hit->t, &ref))
+        /* A leaf */
+        if (intersect_bvh_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
             return;
+        if (sp == 0)
+            return;
+        ref = stack[--sp];
     }
     /* END SOLUTION */
 }

@@ -230,22 +230,6 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
     /* END SOLUTION */
 }
 
-/* Whether RT_ISECT reads a triangle's corners (and nothing precomputed): then a triangle can be
- * tested from corners stored anywhere, e.g. inline in the BVH's leaves (rt_bvh.h). */
-#define RT_ISECT_READS_CORNERS (RT_ISECT == RT_ISECT_MOLLER || RT_ISECT == RT_ISECT_WATERTIGHT)
-
-#if RT_ISECT_READS_CORNERS
-/* The corner-based test chosen by RT_ISECT on triangle tri with corners v0, v1, v2. */
-RT_FN int intersect_tri_corners(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
-{
-#if RT_ISECT == RT_ISECT_WATERTIGHT
-    return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
-#else
-    return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
-#endif
-}
-#endif
-
 /* The test chosen by RT_ISECT, on triangle tri of the scene (the paper's Table 3 variable). */
 RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
 {
@@ -265,8 +249,14 @@ RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
     acc.m2 = load_tri_data(RT_PLUCKER_ROWS * tri + 5);
     return intersect_ray_tri_plucker(ray, &acc, tri, hit);
 #else
-    return intersect_tri_corners(ray, xyz(load_tri_vertex(tri, 0)), xyz(load_tri_vertex(tri, 1)),
-                                 xyz(load_tri_vertex(tri, 2)), tri, hit);
+    float3 v0 = xyz(load_tri_vertex(tri, 0));
+    float3 v1 = xyz(load_tri_vertex(tri, 1));
+    float3 v2 = xyz(load_tri_vertex(tri, 2));
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+    return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
+#else
+    return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
+#endif
 #endif
 }
 

@@ -16,9 +16,6 @@ Device layout (sync with rt_bvh.h), node_data float4, 4 per node = 64 B:
   [4 i + 3] = (ref c0, ref c1, 0, 0) as int32 bits
 ref >= 0: inner node index; a leaf is ~((first << 4) | count) over ``objects[first:first + count]``.
 The root (node 0) is always inner: a one-leaf tree gets a second, identical leaf.
-On the device (``Bvh.node_data``) a leaf's triangles follow the M nodes inline, 3 float4 each in
-``objects`` order (the corners; the triangle id as int bits in the first corner's w), and a leaf
-ref's ``first`` is the node_data row of its first triangle, 4 M + 3 first.
 """
 from __future__ import annotations
 
@@ -38,7 +35,6 @@ FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same input
 LEAF_BITS = 4
 MAX_LEAF = (1 << LEAF_BITS) - 1
 NODE_FLOAT4S = 4
-TRI_FLOAT4S = 3          # an inline leaf triangle on the device (rt_bvh.h BVH_TRI_STRIDE)
 
 
 @dataclass(frozen=True)
@@ -74,9 +70,8 @@ class Bvh:
     def n_nodes(self) -> int:
         return int(self.child_ref.shape[0])
 
-    def node_data(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """(4 M + 3 K, 4) float32 in the device layout: the M nodes, then the K leaf triangles of
-        ``objects`` inline (module docstring), leaf refs pointing at them."""
+    def node_data(self) -> np.ndarray:
+        """(4 M, 4) float32 in the device layout."""
         m = self.n_nodes
         out = np.zeros((m, NODE_FLOAT4S, 4), np.float32)
         lo, hi = self.child_lo, self.child_hi
@@ -84,20 +79,8 @@ class Bvh:
             out[:, c, 0], out[:, c, 1] = lo[:, c, 0], hi[:, c, 0]
             out[:, c, 2], out[:, c, 3] = lo[:, c, 1], hi[:, c, 1]
             out[:, 2, 2 * c], out[:, 2, 2 * c + 1] = lo[:, c, 2], hi[:, c, 2]
-        k = len(self.objects)
-        if NODE_FLOAT4S * m + TRI_FLOAT4S * k >= 1 << (31 - LEAF_BITS):
-            raise SceneError(f"BVH of {k:,} triangles is too large for the device's leaf refs "
-                             f"({1 << (31 - LEAF_BITS):,} float4 rows)")
-        ref = self.child_ref.astype(np.int64)
-        leaf = (ref < 0) & (ref != -1)                      # -1 = ~0: an empty leaf, kept
-        bits = ~ref[leaf]
-        first, count = bits >> LEAF_BITS, bits & MAX_LEAF
-        ref[leaf] = ~(((NODE_FLOAT4S * m + TRI_FLOAT4S * first) << LEAF_BITS) | count)
-        out.view(np.int32)[:, 3, :2] = ref.astype(np.int32)
-        tris = np.zeros((k, TRI_FLOAT4S, 4), np.float32)
-        tris[:, :, :3] = np.asarray(vertices, np.float32)[np.asarray(faces)[self.objects]]
-        tris.view(np.int32)[:, 0, 3] = self.objects
-        return np.concatenate([out.reshape(-1, 4), tris.reshape(-1, 4)])
+        out.view(np.int32)[:, 3, :2] = self.child_ref
+        return out.reshape(-1, 4)
 
 
 def decode_leaf(ref: int) -> tuple[int, int]:
@@ -350,7 +333,7 @@ def bvh_accel(scene, tree=None):
     from ..device_scene import AccelArrays
     bvh, _ = load_or_build_bvh(scene.vertices, scene.faces)
     nodes = np.zeros((1, 2), np.int32)     # unused by the BVH traversal
-    return AccelArrays(nodes, bvh.node_data(scene.vertices, scene.faces), bvh.objects, bvh.bounds, bvh.depth + 1)
+    return AccelArrays(nodes, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
 
 
 def _register():
