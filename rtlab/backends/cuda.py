@@ -201,7 +201,8 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        options = tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
+        from ..kernels import CUDA_PRECISION_OPTIONS
+        options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
         key = (str(path), tuple(sorted(defines.items())), options)
         if key in self._programs:
             return self._programs[key]
