@@ -220,6 +220,7 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
                    sizes: str = typer.Option("1024", help="image sides, comma-separated"),
                    traversals: str = typer.Option("bvh,stack", help="traversals to time, comma-separated"),
                    isect: str = typer.Option("moller"),
+                   block: str = typer.Option("8x16", help="block of the image-shaped launches (primary rays)"),
                    repeats: int = typer.Option(22, help="timed launches; the median is reported"),
                    render: bool = typer.Option(True, help="also time the render kernel on primary views"),
                    md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
@@ -229,7 +230,8 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
     from .benches.rays import COLUMNS, bench_rays, make_rays, rays_markdown, table_rows
     from .kernels import Variant
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
-    variants = [Variant(traversal=t, intersection=isect) for t in traversals.split(",") if t]
+    (bx, by), = _blocks(block)
+    variants = [Variant(traversal=t, intersection=isect, block=(bx, by)) for t in traversals.split(",") if t]
     rows = []
     for size in (int(s) for s in sizes.split(",") if s):
         for view in (v for v in views.split(",") if v):

@@ -48,6 +48,22 @@ def test_ray_buffers_are_reused_for_the_same_count_only(backend, small_scene):
     assert len(part.tri) == half and ray_buffers(backend, half) is not first
 
 
+@pytest.mark.parametrize("variant", [Variant(traversal="bvh", block=(8, 16)), Variant(block=(32, 4)),
+                                     Variant(traversal="bvh", block=(8, 8), ray_order="morton")],
+                         ids=lambda v: v.label())
+def test_image_shaped_launch_gives_the_same_hits(backend, small_scene, variant):
+    """trace(width=) takes the rays in tiles of the block (a warp traces neighbours), hits unchanged;
+    an image whose sides are not multiples of the block included."""
+    scene = rtlab.load_scene("default", size=8)
+    scene.camera = small_scene.camera.with_size(37, 21)
+    o, d = camera_rays(scene.camera)
+    plain = trace(scene, o, d, backend, variant)
+    grid = trace(scene, o, d, backend, variant, width=37)
+    assert np.array_equal(plain.tri, grid.tri) and np.array_equal(plain.t, grid.t)
+    with pytest.raises(rtlab.RtlabError, match="rows"):
+        trace(scene, o, d, backend, variant, width=36)
+
+
 def _diffuse_ray_by_the_readme(p_hit, n, incoming, u1, u2, diagonal):
     """One bounce ray, written out from ../shared/bench/README.md's text, scalar by scalar."""
     n = np.asarray(n, float) / math.sqrt(float(np.dot(n, n)))

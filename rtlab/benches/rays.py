@@ -153,7 +153,10 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     on the same camera (what trace should match)."""
     from ..reference import compare_hits
     from ..tracing import trace
-    result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup)
+    # primary rays are an image: traced in tiles of the variant's block (trace's width=)
+    width = batch.size if batch.kind == "primary" else None
+    result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,
+                   width=width)
     idx = batch.check_index
     cmp = compare_hits(batch.reference, result.tri[idx], result.t[idx], batch.scene.vertices, batch.scene.faces,
                        batch.origins[idx], batch.directions[idx])
