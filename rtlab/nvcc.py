@@ -11,6 +11,7 @@ from pathlib import Path
 
 from .backends.base import KernelResources
 from .errors import KernelBuildError
+from .kernels import CUDA_PRECISION_OPTIONS
 from .occupancy import SM90, cuda_occupancy
 from .paths import SHARED_KERNEL_DIR
 
@@ -26,7 +27,7 @@ def nvcc_resources(path: Path, defines: dict, arch: str = "sm_90", block_threads
         raise KernelBuildError("nvcc not found on PATH: the offline CUDA report needs the CUDA toolkit")
     with tempfile.TemporaryDirectory() as tmp:
         cmd = ["nvcc", "-cubin", f"-arch={arch}", "-Xptxas", "-v", f"-I{SHARED_KERNEL_DIR}",
-               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *extra_options,
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
                "-o", str(Path(tmp) / "k.cubin"), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -42,7 +43,8 @@ def nvcc_ptx(path: Path, defines: dict, arch: str = "sm_90", extra_options: tupl
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "k.ptx"
         cmd = ["nvcc", "-ptx", f"-arch={arch}", f"-I{SHARED_KERNEL_DIR}",
-               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *extra_options, "-o", str(out), str(path)]
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
+               "-o", str(out), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             from .backends.opencl import format_build_error

@@ -64,9 +64,10 @@ class TraceResult:
     tri: np.ndarray      # (N,) int32, -1 where missed
     u: np.ndarray
     v: np.ndarray
-    kernel_ms: float     # device time of the tracing kernel
+    kernel_ms: float     # device time of the tracing kernel (median over the timed launches)
     backend: str = ""
     device: str = ""
+    launches_ms: tuple = ()   # each timed launch's device time (``repeats`` of trace())
 
     @property
     def hit(self) -> np.ndarray:
@@ -118,9 +119,24 @@ def _ray_bounds(tmin, tmax, n: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+_ray_buffers: dict = {}
+
+
+def ray_buffers(backend, n: int):
+    """Device buffers for n rays and their hits (origins, directions, hits), kept per backend for the
+    most recent ray count: a caller tracing batch after batch of one size allocates once."""
+    key = id(backend)
+    entry = _ray_buffers.get(key)
+    if entry is None or entry[0] is not backend or entry[1] != n:
+        entry = (backend, n, (backend.empty(n * 16), backend.empty(n * 16), backend.empty(n * HIT_DTYPE.itemsize)))
+        _ray_buffers[key] = entry
+    return entry[2]
+
+
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
-          defines: dict | None = None, min_stack_size: int = 0) -> TraceResult:
+          defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,
+          warmup: int = 0, width: int | None = None) -> TraceResult:
     """Closest hit along each ray o + t d within (tmin, tmax), t in units of |d| (d need not be
     normalised: any finite, non-zero length works). At exactly equal t the lowest triangle id
     wins, in every traversal and triangle test (as in the float64 reference), so all variants
@@ -133,7 +149,12 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     >= 0 (a RtlabError otherwise). ``variant`` None: DEFAULT_VARIANT (watertight; a Variant you
     name keeps its own test). ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
-    stack at least that deep, so one program serves scenes of different depths."""
+    stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
+    many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
+    median device time. ``width``: the rays form an image of that many columns, row-major (as
+    camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
+    order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
+    The hits are the same either way."""
     origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
@@ -152,15 +173,30 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
         features = replace(features, stack_size=int(min_stack_size))
     program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
     ds.set_constants(program, None, variant)
-    o_buf = backend.to_device(float4_rows(origins, lo * scale))
-    d_buf = backend.to_device(float4_rows(directions, hi * scale))
-    h_buf = backend.empty(n * HIT_DTYPE.itemsize)
-    ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
-                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
+    o_buf, d_buf, h_buf = ray_buffers(backend, n)
+    backend.fill(o_buf, float4_rows(origins, lo * scale))
+    backend.fill(d_buf, float4_rows(directions, hi * scale))
+    launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width else \
+        (lambda: program.launch("trace_rays", (n,), (TRACE_BLOCK,),
+                                ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
+    times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     if np.any(scale != 1.0):
         t = (t / scale).astype(np.float32)
-    return TraceResult(t, tri, u, v, ms, backend.name, backend.device_name)
+    return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
+
+
+def _grid_launch(program, ds, variant: Variant, n: int, width: int, buffers):
+    """The launch of trace_ray_grid over rays laid out as rows of ``width`` (trace's ``width``)."""
+    width = int(width)
+    if width <= 0 or n % width:
+        raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
+    if primary_step(variant) != PRIMARY_STEP:
+        raise RtlabError(f"width= needs lab step {PRIMARY_STEP}'s kernels; {variant.label()} runs in "
+                         f"{primary_step(variant)}'s, which trace a plain list of rays")
+    height = n // width
+    args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
+    return lambda: program.launch("trace_ray_grid", (width, height), variant.block, args, constants=("frame",))
 
 
 def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
