@@ -11,5 +11,8 @@ log() { echo "\$ $*" | tee -a "$OUT/numerics.log"; timeout ${STEP_TIMEOUT:-900} 
 log python -m rtlab bench robustness --backends cuda,opencl --device NVIDIA --size bench --families 10,11,12 --md "$MD"
 log python benchmarks/bench_default_isect.py --backend cuda --size 1024 --leak-rays 100000 --repeat 9 --md "$MD"
 log python benchmarks/bench_default_isect.py --backend opencl --device NVIDIA --size 1024 --leak-rays 100000 --repeat 9 --md "$MD"
+# issue 5's wavefront kernel: the padded fused box test (more registers) against the exact one, and the watertight default
+log python benchmarks/profile_whitted.py --scene sponza --size 1024 --bounces 3 --backend cuda --repeats 20 \
+    --configs bvh:wavefront:block8x8:isect=moller:fma1,bvh:wavefront:block8x8:isect=moller:fma0,bvh:wavefront:block8x8
 RTLAB_TEST_BACKENDS=cuda,opencl:NVIDIA log python -m pytest -q -rfEs tests/test_robustness.py tests/test_traversal.py -k "ties or fused_box or spawn or direction or gpu"
 tail -60 "$OUT/numerics.log"
