@@ -104,9 +104,11 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            out: Path = typer.Option(Path("render.png"), help="PNG to write"),
            check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
            repeats: int = typer.Option(5, help="timed launches (median reported)"),
-           traversal: str = typer.Option("stack", help="kd-tree traversal variant"),
-           isect: str = typer.Option("watertight", help="triangle intersection test (the paper's: moller)"),
-           block: str = typer.Option("32x4", help="block / work-group shape WxH"),
+           traversal: Optional[str] = typer.Option(None, help="traversal (default: bvh on a GPU, stack on a CPU)"),
+           isect: Optional[str] = typer.Option(None, help="triangle intersection test (default: watertight; the "
+                                               "paper's: moller)"),
+           block: Optional[str] = typer.Option(None, help="block / work-group shape WxH (default: 8x16 on a GPU, "
+                                               "32x4 on a CPU)"),
            shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
            bounces: Optional[int] = typer.Option(None, help="reflection/refraction bounces (kernel tree)"),
            materials: str = typer.Option("auto", help="with --shadows/--bounces: file, mtl, bart, paper, "
@@ -117,15 +119,12 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
                                         "tree) or wavefront (one launch per level)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
-    from .kernels import Variant
     from .rendering import render as do_render, save_png
-    try:
-        bx, by = (int(v) for v in block.lower().split("x"))
-    except ValueError:
-        raise RtlabError(f"--block must look like 32x4, got '{block}'") from None
-    variant = Variant(traversal=traversal, intersection=isect, block=(bx, by))
+    from .tracing import default_variant
     from .backends import get_backend
     be = get_backend(backend, device)
+    chosen = {"traversal": traversal, "intersection": isect, "block": _blocks(block)[0] if block else None}
+    variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
     sc = _load_scene(scene, size)
     _tree(sc)
     if shadows is not None or bounces is not None:
@@ -479,7 +478,7 @@ def _blocks(text: str) -> list[tuple[int, int]]:
     try:
         return [tuple(int(v) for v in b.lower().split("x")) for b in text.split(",") if b]
     except ValueError:
-        raise RtlabError(f"block shapes look like 2x32,4x32, got '{text}'") from None
+        raise RtlabError(f"--block: block shapes look like 32x4 (several: 2x32,4x32), got '{text}'") from None
 
 
 @bench_app.command("memory")

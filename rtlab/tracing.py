@@ -25,12 +25,21 @@ DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its bu
 # [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
 # read as a zero direction), above it products with coordinates overflow.
 DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
-# What trace(), render() and render_whitted() run when no variant is named: the stack traversal with
-# the watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through
-# shared edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 13-24 % of the
-# rays aimed at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13).
-# The lab steps and the paper's benches name their variants and keep the paper's.
+# What trace(), render() and render_whitted() run when no variant is named (default_variant): the
+# watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through shared
+# edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 13-24 % of the rays aimed
+# at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13). On a GPU the
+# BVH in 8x16 blocks: twice the kd stack's rays per second on most benchmark views, and tile-shaped
+# warps trace indoor views 18-19 % faster than 32x4 rows (H100, docs/benchmarks.md, issue 12). On a
+# CPU the kd stack traversal, which PoCL runs faster than the single-ray BVH. The lab steps and the
+# paper's benches name their variants and keep the paper's.
 DEFAULT_VARIANT = Variant(intersection="watertight")
+GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
+
+
+def default_variant(backend) -> Variant:
+    """The variant the library runs on ``backend`` when none is named (see DEFAULT_VARIANT)."""
+    return GPU_DEFAULT_VARIANT if backend.is_gpu() else DEFAULT_VARIANT
 
 
 def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
@@ -146,8 +155,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     the BVH may report the nearer one the kd-tree's cells hide (a tie by the reference's rule,
     rtlab.reference.compare_hits). Rays with NaN/Inf components or a zero
     direction are reported as misses. ``tmin``, ``tmax``: scalars or one per ray; tmin must be
-    >= 0 (a RtlabError otherwise). ``variant`` None: DEFAULT_VARIANT (watertight; a Variant you
-    name keeps its own test). ``backend`` is a Backend or a name ("opencl", "cuda").
+    >= 0 (a RtlabError otherwise). ``variant`` None: default_variant(backend) (watertight;
+    the BVH on a GPU; a Variant you name keeps its own test and traversal). ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
@@ -162,7 +171,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     lo, hi = _ray_bounds(tmin, tmax, n)
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or DEFAULT_VARIANT
+    variant = variant or default_variant(backend)
     ds = device_scene(scene, backend)
     if n == 0:
         empty = np.zeros(0, np.float32)

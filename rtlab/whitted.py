@@ -40,7 +40,7 @@ from .errors import RtlabError
 from .kernels import SceneFeatures, Variant, load_program
 from .layout import HIT_DTYPE
 from .scene.model import Scene
-from .tracing import DEFAULT_VARIANT, TraceResult, device_scene, unpack_hits
+from .tracing import TraceResult, default_variant, device_scene, unpack_hits
 
 SHADOWS_STEP = "04_shadows"
 TREE_STEP = "05_kernel_tree"
@@ -135,10 +135,10 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
                    defines: dict | None = None) -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
     (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones. ``defines``
-    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: DEFAULT_VARIANT."""
+    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: rtlab.tracing.default_variant(backend)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or DEFAULT_VARIANT
+    variant = variant or default_variant(backend)
     if variant.traversal == "packet":
         raise RtlabError("the packet traversal has no shadow or secondary-ray kernels (its shared stack lives in "
                          "lab step 03's entry kernels); choose a single-ray traversal")
@@ -482,7 +482,7 @@ def hit_records(t, tri, u, v) -> np.ndarray:
 def _probe_program(scene: Scene, backend, step: str, variant: Variant | None):
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
-    variant = variant or DEFAULT_VARIANT
+    variant = variant or default_variant(backend)
     ds = device_scene(scene, backend)
     program = load_program(backend, step, variant, ds.features(variant))
     ds.set_constants(program, None, variant)
