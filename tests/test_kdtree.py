@@ -3,8 +3,11 @@
 Required invariants, on small procedural meshes and on BUNNY:
   (a) every triangle overlapping a leaf cell's interior (exact float64 separating-axis test, cell
       shrunk by a tiny tolerance) is referenced by that leaf; an axis-aligned triangle lying in a
-      cell's face counts as overlapping it, so one lying in a split plane must be on both sides;
-  (b) every split plane lies strictly inside its node's cell;
+      cell's face counts as overlapping it, so one lying in a split plane must be on both sides,
+      except a plane on the node's face, which cuts the triangles lying in it off into a flat
+      cell: those are in the flat child only;
+  (b) every split plane lies strictly inside its node's cell, or on one of its faces with the
+      flat child on that side holding only triangles lying in that plane;
   (c) node encoding: children adjacent and after their parent, each node reached once, leaf object
       ranges in range and disjoint, triangle indices valid, ``depth`` the deepest leaf;
   (d) cache round trip, keys, corrupt files, RTLAB_NO_CACHE;
@@ -135,7 +138,13 @@ def _missing_refs(nodes, objects, cells, tris, usable, tol):
                     if first_tri < 0:
                         first_tri, first_leaf = t, i
                 continue
-            for c in ((w >> 2), (w >> 2) + 1):
+            axis, left = w & 3, w >> 2
+            p = cells[left, 3 + axis]
+            in_plane = tris[t, 0, axis] == p and tris[t, 1, axis] == p and tris[t, 2, axis] == p
+            for c in (left, left + 1):
+                if in_plane and cells[c, axis] < cells[c, 3 + axis] and (
+                        p == cells[i, axis] or p == cells[i, 3 + axis]):
+                    continue    # a flat cut: triangles lying in its plane go to the flat cell only
                 lo, hi = _probe_box(tris[t], cells[c], tol)
                 if np.all(lo <= hi) and _tri_box_overlap(tris[t], lo, hi):
                     stack[sp] = c
@@ -308,8 +317,9 @@ def _triangles(vertices, faces):
     return tris, usable
 
 
-def _check_structure(tree: KdTree, n_faces: int):
+def _check_structure(tree: KdTree, vertices, faces):
     """(b) and (c)."""
+    n_faces = len(faces)
     nodes, objects = tree.nodes, tree.objects
     assert nodes.dtype == np.int32 and nodes.ndim == 2 and nodes.shape[1] == 2
     assert objects.dtype == np.int32 and tree.bounds.dtype == np.float32
@@ -335,7 +345,21 @@ def _check_structure(tree: KdTree, n_faces: int):
     axis = tree.split_axis()[inner]
     p = tree.split_pos()[inner].astype(np.float64)
     lo, hi = cells[inner, axis], cells[inner, 3 + axis]
-    assert np.all((lo < p) & (p < hi)), "a split plane lies on or outside its cell"
+    flat_cut = (p == lo) | (p == hi)
+    assert np.all(((lo < p) & (p < hi)) | (flat_cut & (lo < hi))), "a split plane lies outside its cell"
+    # The flat child of a cut on a face holds only triangles lying in that plane
+    for node, a, plane, on_lo in zip(inner[flat_cut], axis[flat_cut], p[flat_cut], (p == lo)[flat_cut]):
+        flat = tree.child_or_count()[node] + (0 if on_lo else 1)
+        assert leaf[flat] or tree.split_axis()[flat] != a, "a flat cell split along its flat axis"
+        below = [flat]
+        while below:
+            k = below.pop()
+            if leaf[k]:
+                off, n = nodes[k, 1], tree.child_or_count()[k]
+                corners = vertices[faces[objects[off:off + n]], a]
+                assert np.all(corners == plane), "a flat cell holds a triangle outside its plane"
+            else:
+                below += [tree.child_or_count()[k], tree.child_or_count()[k] + 1]
     return cells
 
 
@@ -388,7 +412,7 @@ def _check_rays(tree: KdTree, tris, usable, rng, n_rays):
 def _check_all(vertices, faces, params=KdBuildParams(), n_rays=2000, seed=0):
     tree = build_kdtree(vertices, faces, params)
     tris, usable = _triangles(vertices, faces)
-    cells = _check_structure(tree, len(faces))
+    cells = _check_structure(tree, vertices, faces)
     _check_coverage(tree, tris, usable, cells)
     _check_rays(tree, tris, usable, np.random.default_rng(seed), n_rays)
     return tree, usable

@@ -49,11 +49,12 @@ about equal work), so both cores stay busy from the second level down.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 
 LEAF_TAG = 3
@@ -115,29 +116,6 @@ class KdTree:
 # -0.0 (adding +0.0 turns it into +0.0), so equal coordinates have equal bits in the exact sweep.
 # ---------------------------------------------------------------------------------------------
 
-@njit(parallel=True, cache=True)
-def _triangle_boxes(vertices, faces):
-    """Bounding box of every triangle, and whether it can be hit (finite, non-zero area)."""
-    n = faces.shape[0]
-    boxes = np.empty((n, 6), np.float32)
-    usable = np.zeros(n, np.bool_)
-    for i in prange(n):
-        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
-        finite = True
-        for k in range(3):
-            x0, x1, x2 = vertices[i0, k], vertices[i1, k], vertices[i2, k]
-            finite &= np.isfinite(x0) and np.isfinite(x1) and np.isfinite(x2)
-            boxes[i, k] = min(x0, x1, x2) + np.float32(0.0)
-            boxes[i, 3 + k] = max(x0, x1, x2) + np.float32(0.0)
-        # Twice the area, in float64: zero for collinear or repeated vertices
-        ax, ay, az = np.float64(vertices[i0, 0]), np.float64(vertices[i0, 1]), np.float64(vertices[i0, 2])
-        ux, uy, uz = vertices[i1, 0] - ax, vertices[i1, 1] - ay, vertices[i1, 2] - az
-        vx, vy, vz = vertices[i2, 0] - ax, vertices[i2, 1] - ay, vertices[i2, 2] - az
-        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        usable[i] = finite and nx * nx + ny * ny + nz * nz > 0.0
-    return boxes, usable
-
-
 @njit(cache=True)
 def _area_terms(node_box, axis, inv_area):
     """(k0, k1) with SA(child) / SA(node) = k0 + k1 * (child's extent along axis)."""
@@ -173,7 +151,10 @@ def _bin_refs(ref_box, start, n, node_box, scale, counts):
     """Min-max binning (Wald 2007): counts[0, a, k] references whose minimum on axis a falls in
     bin k, counts[1, a, k] those whose maximum does."""
     nbins = counts.shape[2]
-    counts[:] = 0
+    for side in range(2):
+        for a in range(3):
+            for k in range(nbins):
+                counts[side, a, k] = 0
     for j in range(start, start + n):
         for a in range(3):
             counts[0, a, _bin_of(ref_box[j, a], node_box[a], scale[a], nbins)] += 1
@@ -213,19 +194,61 @@ def _event_key(bits, kind, index):
 
 
 @njit(cache=True)
-def _sort_small(keys):
-    """In-place sort; insertion sort for the short event lists of small nodes, where numba's
-    ndarray.sort costs ~0.5 us of overhead a call."""
-    if len(keys) > 48:
-        keys.sort()
-        return
-    for i in range(1, len(keys)):
+def _insertion_sort(keys, lo, hi):
+    """Sort keys[lo:hi + 1] in place."""
+    for i in range(lo + 1, hi + 1):
         x = keys[i]
         j = i - 1
-        while j >= 0 and keys[j] > x:
+        while j >= lo and keys[j] > x:
             keys[j + 1] = keys[j]
             j -= 1
         keys[j + 1] = x
+
+
+@njit(cache=True)
+def _sort_keys(keys):
+    """Sort distinct keys in place: quicksort (median of three, the shorter part first, so the
+    pending stack stays below 2 log2 n entries) down to runs of 24, then insertion sort. Not
+    ndarray.sort: numba compiles its own sort for ~1 s on first use."""
+    lo, hi = 0, len(keys) - 1
+    if hi < 48:                 # most lists: no stack to allocate
+        _insertion_sort(keys, lo, hi)
+        return
+    stack = np.empty(128, np.int64)
+    sp = 0
+    while True:
+        if hi - lo < 24:
+            _insertion_sort(keys, lo, hi)
+            if sp == 0:
+                return
+            sp -= 2
+            lo, hi = stack[sp], stack[sp + 1]
+            continue
+        mid = (lo + hi) >> 1
+        if keys[mid] < keys[lo]:
+            keys[mid], keys[lo] = keys[lo], keys[mid]
+        if keys[hi] < keys[lo]:
+            keys[hi], keys[lo] = keys[lo], keys[hi]
+        if keys[hi] < keys[mid]:
+            keys[hi], keys[mid] = keys[mid], keys[hi]
+        pivot = keys[mid]
+        i, j = lo, hi
+        while i <= j:
+            while keys[i] < pivot:
+                i += 1
+            while keys[j] > pivot:
+                j -= 1
+            if i <= j:
+                keys[i], keys[j] = keys[j], keys[i]
+                i += 1
+                j -= 1
+        if j - lo < hi - i:
+            stack[sp], stack[sp + 1] = i, hi
+            hi = j
+        else:
+            stack[sp], stack[sp + 1] = lo, j
+            lo = i
+        sp += 2
 
 
 @njit(cache=True)
@@ -236,6 +259,7 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
     node is a candidate plane. References entirely before the window only enter the counts."""
     lo, hi = node_box[a], node_box[3 + a]
     n_left, n_right = 0, n
+    n_flat_lo = n_flat_hi = 0       # references lying in the node's lower / upper face
     m = 0
     for j in range(n):
         ref = start + j
@@ -244,6 +268,8 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
         n_right -= x1 < w_lo
         b0, b1 = ref_bits[ref, a], ref_bits[ref, 3 + a]
         if b0 == b1:
+            n_flat_lo += x0 == lo
+            n_flat_hi += x0 == hi
             if w_lo <= x0 < w_hi:
                 events[m] = _event_key(b0, _EV_PLANAR, j)
                 m += 1
@@ -255,7 +281,7 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
             events[m] = _event_key(b1, _EV_END, j)
             m += 1
     ev = events[:m]
-    _sort_small(ev)
+    _sort_keys(ev)
     k0, k1 = _area_terms(node_box, a, inv_area)
     lo64, hi64 = np.float64(lo), np.float64(hi)
     best_cost, best_pos = np.inf, np.float32(0.0)
@@ -278,6 +304,16 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
                 best_cost, best_pos = cost, p
         n_left += n_start + n_planar
         n_planar = n_start = 0
+    # A plane on the node's face cuts the references lying in it off into a flat cell (module
+    # docstring): the rest of the node keeps its box without them
+    if n_flat_lo > 0:
+        cost = _split_cost(k0, k1, lo64, hi64, lo64, n_flat_lo, n - n_flat_lo, ct, ci, eb)
+        if cost < best_cost:
+            best_cost, best_pos = cost, lo
+    if n_flat_hi > 0:
+        cost = _split_cost(k0, k1, lo64, hi64, hi64, n - n_flat_hi, n_flat_hi, ct, ci, eb)
+        if cost < best_cost:
+            best_cost, best_pos = cost, hi
     return best_pos, best_cost
 
 
@@ -310,24 +346,30 @@ def _best_split(ref_box, ref_bits, start, n, node_box, binned, scale, counts, ev
 
 
 @njit(cache=True)
-def _count_sides(ref_box, start, n, axis, p):
-    """References going left and right under the classification rule (module docstring)."""
-    n_left = n_right = 0
-    for j in range(start, start + n):
-        lo, hi = ref_box[j, axis], ref_box[j, 3 + axis]
-        planar = lo == p and hi == p
-        n_left += lo < p or planar
-        n_right += hi > p or planar
-    return n_left, n_right
+def _sides(lo, hi, p, cell_lo, cell_hi):
+    """(left, right): whether a reference with extent [lo, hi] on the split axis goes to each
+    child of a split at p of the cell [cell_lo, cell_hi] (the rule of the module docstring)."""
+    planar = lo == p and hi == p
+    return lo < p or (planar and p < cell_hi), hi > p or (planar and p > cell_lo)
 
 
 @njit(cache=True)
-def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, first, last, ct, ci, eb,
-                max_leaf, nbins, exact_below, axis, pos, n_left, n_right):
-    """Choose the split of nodes first..last-1 (axis -1: make a leaf) and count its children's
-    references."""
-    events = np.empty(2 * node_count[first:last].max(), np.int64)
-    counts = np.empty((2, 3, max(nbins, 1)), np.int64)
+def _count_sides(ref_box, start, n, node_box, axis, p):
+    """References going left and right of a split at p."""
+    n_left = n_right = 0
+    for j in range(start, start + n):
+        left, right = _sides(ref_box[j, axis], ref_box[j, 3 + axis], p, node_box[axis],
+                             node_box[3 + axis])
+        n_left += left
+        n_right += right
+    return n_left, n_right
+
+
+@njit(nogil=True, cache=True)
+def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb, max_leaf,
+                exact_below, binned, counts, events, axis, pos, n_left, n_right, first, last):
+    """Choose the split of nodes first..last-1 (axis stays -1: a leaf) and count its children's
+    references. counts (bins), events (twice the largest node's references): scratch."""
     scale = np.empty(3)
     for i in range(first, last):
         n = node_count[i]
@@ -335,29 +377,12 @@ def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, first, last
         if n <= max_leaf or not area > 0.0:
             continue
         s = node_start[i]
-        a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], nbins > 0 and n > exact_below,
+        a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], binned and n > exact_below,
                                  scale, counts, events, 1.0 / area, ct, ci, eb)
         if a >= 0 and cost < ci * n:
             axis[i] = a
             pos[i] = p
-            n_left[i], n_right[i] = _count_sides(ref_box, s, n, a, p)
-
-
-@njit(parallel=True, cache=True)
-def _plan_level(ref_box, ref_bits, node_box, node_start, node_count, chunks, leaves_only,
-                ct, ci, eb, max_leaf, nbins, exact_below):
-    """Splits of a level's nodes (axis -1: leaf) and their children's reference counts."""
-    n_nodes = node_box.shape[0]
-    axis = np.full(n_nodes, -1, np.int32)
-    pos = np.zeros(n_nodes, np.float32)
-    n_left = np.zeros(n_nodes, np.int64)
-    n_right = np.zeros(n_nodes, np.int64)
-    if not leaves_only:
-        for c in prange(chunks.shape[0] - 1):
-            _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, chunks[c],
-                        chunks[c + 1], ct, ci, eb, max_leaf, nbins, exact_below, axis, pos,
-                        n_left, n_right)
-    return axis, pos, n_left, n_right
+            n_left[i], n_right[i] = _count_sides(ref_box, s, n, node_box[i], a, p)
 
 
 @njit(cache=True)
@@ -424,10 +449,9 @@ def _split_straddler(vertices, faces, tri, ref_box_row, node_box, axis, p, poly,
     ever shrink; if rounding left nothing, the side's share of the current box is kept.
     ext: (4, 3) float64 scratch for the two sides' extents."""
     lo_l, hi_l, lo_r, hi_r = ext[0], ext[1], ext[2], ext[3]
-    lo_l[:] = np.inf
-    hi_l[:] = -np.inf
-    lo_r[:] = np.inf
-    hi_r[:] = -np.inf
+    for c in range(3):
+        lo_l[c] = lo_r[c] = np.inf
+        hi_l[c] = hi_r[c] = -np.inf
     src, m = _clip_to_box(vertices, faces, tri, node_box, poly)
     pp = np.float64(p)
     for k in range(m):
@@ -467,17 +491,25 @@ def _split_straddler(vertices, faces, tri, ref_box_row, node_box, axis, p, poly,
 
 
 @njit(cache=True)
+def _copy_row(dst, src):
+    for c in range(dst.shape[0]):
+        dst[c] = src[c]
+
+
+@njit(nogil=True, cache=True)
 def _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
-                   dst_left, dst_right, leaf_dst, first, last, out_tri, out_box, objects):
+                   dst_left, dst_right, leaf_dst, out_tri, out_box, objects, first, last):
     """Write the references of split nodes first..last-1 to their children (clipping
-    straddlers) and the triangle lists of its leaves to ``objects``."""
+    straddlers) and the triangle lists of its leaves to ``objects``. Rows are copied element by
+    element: array assignment would compile numba's broadcasting (~2 s on first use)."""
     poly = np.empty((2, 16, 3))
     ext = np.empty((4, 3))
     for i in range(first, last):
         s, n = node_start[i], node_count[i]
         a = axis[i]
         if a < 0:
-            objects[leaf_dst[i]:leaf_dst[i] + n] = ref_tri[s:s + n]
+            for j in range(n):
+                objects[leaf_dst[i] + j] = ref_tri[s + j]
             continue
         p = pos[i]
         left, right = dst_left[i], dst_right[i]
@@ -490,29 +522,44 @@ def _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node
                 left += 1
                 right += 1
                 continue
-            planar = lo == p and hi == p
-            if lo < p or planar:
+            to_left, to_right = _sides(lo, hi, p, node_box[i, a], node_box[i, 3 + a])
+            if to_left:
                 out_tri[left] = ref_tri[j]
-                out_box[left] = ref_box[j]
+                _copy_row(out_box[left], ref_box[j])
                 left += 1
-            if hi > p or planar:
+            if to_right:
                 out_tri[right] = ref_tri[j]
-                out_box[right] = ref_box[j]
+                _copy_row(out_box[right], ref_box[j])
                 right += 1
 
 
-@njit(parallel=True, cache=True)
-def _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
-                   dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects):
-    for c in prange(chunks.shape[0] - 1):
-        _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis,
-                       pos, dst_left, dst_right, leaf_dst, chunks[c], chunks[c + 1], out_tri,
-                       out_box, objects)
+@njit(nogil=True, cache=True)
+def _triangle_boxes(vertices, faces):
+    """Bounding box of every triangle (no -0.0), and whether it can be hit (finite, non-zero
+    area)."""
+    n = faces.shape[0]
+    boxes = np.empty((n, 6), np.float32)
+    usable = np.zeros(n, np.bool_)
+    for i in range(n):
+        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
+        finite = True
+        for k in range(3):
+            x0, x1, x2 = vertices[i0, k], vertices[i1, k], vertices[i2, k]
+            finite &= np.isfinite(x0) and np.isfinite(x1) and np.isfinite(x2)
+            boxes[i, k] = min(x0, x1, x2) + np.float32(0.0)
+            boxes[i, 3 + k] = max(x0, x1, x2) + np.float32(0.0)
+        # Twice the area, in float64: zero for collinear or repeated vertices
+        ax, ay, az = np.float64(vertices[i0, 0]), np.float64(vertices[i0, 1]), np.float64(vertices[i0, 2])
+        ux, uy, uz = vertices[i1, 0] - ax, vertices[i1, 1] - ay, vertices[i1, 2] - az
+        vx, vy, vz = vertices[i2, 0] - ax, vertices[i2, 1] - ay, vertices[i2, 2] - az
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        usable[i] = finite and nx * nx + ny * ny + nz * nz > 0.0
+    return boxes, usable
 
 
-@njit(cache=True)
-def _link_level(node_box, node_start, node_count, axis, pos, n_left, n_right, first_node,
-                first_object, ct, ci):
+@njit(nogil=True, cache=True)
+def _link_level(node_box, node_count, axis, pos, n_left, n_right, first_node, first_object, ct,
+                ci):
     """Encode one level's nodes (children of its k-th split node become the next level's nodes
     2k and 2k + 1), place the children's reference ranges and the leaves' object lists, and sum
     the level's share of the tree's SAH cost (unnormalised)."""
@@ -544,7 +591,7 @@ def _link_level(node_box, node_start, node_count, axis, pos, n_left, n_right, fi
         dst_left[i] = n_refs
         dst_right[i] = n_refs + n_left[i]
         for side in range(2):
-            next_box[2 * k + side] = node_box[i]
+            _copy_row(next_box[2 * k + side], node_box[i])
         next_box[2 * k, 3 + a] = next_box[2 * k + 1, a] = pos[i]
         next_start[2 * k] = dst_left[i]
         next_start[2 * k + 1] = dst_right[i]
@@ -561,11 +608,34 @@ def _link_level(node_box, node_start, node_count, axis, pos, n_left, n_right, fi
 # host side
 # ---------------------------------------------------------------------------------------------
 
+def _threads() -> int:
+    return max(1, int(numba.config.NUMBA_NUM_THREADS))
+
+
+_pool: ThreadPoolExecutor | None = None
+
+
+def _for_each_chunk(kernel, chunks: np.ndarray, *args) -> None:
+    """kernel(*args, first, last) for every run of nodes chunks[c]..chunks[c + 1], on a pool of
+    threads (the kernels release the GIL). Threads rather than numba's prange: a parallel
+    function costs seconds more to compile on first use, and the runs are planned here anyway."""
+    global _pool
+    runs = [(int(chunks[c]), int(chunks[c + 1])) for c in range(len(chunks) - 1)]
+    if len(runs) == 1 or _threads() == 1:
+        for first, last in runs:
+            kernel(*args, first, last)
+        return
+    if _pool is None:
+        _pool = ThreadPoolExecutor(_threads(), thread_name_prefix="rtlab-kd")
+    for done in [_pool.submit(kernel, *args, first, last) for first, last in runs]:
+        done.result()
+
+
 def _work_chunks(node_count: np.ndarray) -> np.ndarray:
     """Boundaries splitting a level's nodes into runs of about equal work (references plus a
-    per-node overhead), a few per thread: prange deals its iterations out in equal shares."""
+    per-node overhead), a few per thread, so that no thread waits long for the last run."""
     n = len(node_count)
-    n_chunks = min(n, 4 * numba.get_num_threads())
+    n_chunks = min(n, 4 * _threads())
     work = np.cumsum(node_count + 16)
     cuts = np.searchsorted(work, np.linspace(0, work[-1], n_chunks + 1)[1:-1])
     return np.unique(np.concatenate([[0], cuts, [n]])).astype(np.int64)
@@ -598,10 +668,38 @@ def build_kdtree(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams 
     return KdTree(nodes, objects, bounds, depth, params, time.perf_counter() - t0, sah_cost)
 
 
+def _plan_level(ref_box, node_box, node_start, node_count, chunks, params: KdBuildParams,
+                leaves_only: bool):
+    """Splits of a level's nodes (axis -1: leaf) and their children's reference counts."""
+    n = len(node_count)
+    axis = np.full(n, -1, np.int32)
+    pos = np.zeros(n, np.float32)
+    n_left = np.zeros(n, np.int64)
+    n_right = np.zeros(n, np.int64)
+    if leaves_only:
+        return axis, pos, n_left, n_right
+    binned = params.bins > 0
+    # Scratch for each run of nodes: bin counts, and sweep events (two per reference)
+    scratch = [(np.empty((2, 3, max(params.bins, 1)), np.int64),
+                np.empty(2 * int(node_count[first:last].max()), np.int64))
+               for first, last in zip(chunks[:-1], chunks[1:])]
+    scratch_of = {int(first): s for first, s in zip(chunks[:-1], scratch)}
+
+    def plan_run(first, last):
+        counts, events = scratch_of[first]
+        _plan_nodes(ref_box, ref_box.view(np.int32), node_box, node_start, node_count,
+                    float(params.cost_traversal), float(params.cost_intersect), float(params.empty_bonus),
+                    int(params.max_leaf_size), int(params.exact_below), binned, counts, events, axis, pos,
+                    n_left, n_right, first, last)
+
+    _for_each_chunk(plan_run, chunks)
+    return axis, pos, n_left, n_right
+
+
 def _build_levels(vertices, faces, ref_tri, ref_box, bounds, params: KdBuildParams, progress):
     """The level loop: returns nodes, objects, depth and the unnormalised SAH cost."""
     max_depth = params.depth_limit(len(ref_tri))
-    ct, ci, eb = float(params.cost_traversal), float(params.cost_intersect), float(params.empty_bonus)
+    ct, ci = float(params.cost_traversal), float(params.cost_intersect)
     node_box = bounds.reshape(1, 6).copy()
     node_start = np.zeros(1, np.int64)
     node_count = np.array([len(ref_tri)], np.int64)
@@ -611,17 +709,16 @@ def _build_levels(vertices, faces, ref_tri, ref_box, bounds, params: KdBuildPara
     depth = 0
     while True:
         chunks = _work_chunks(node_count)
-        axis, pos, n_left, n_right = _plan_level(
-            ref_box, ref_box.view(np.int32), node_box, node_start, node_count, chunks,
-            depth >= max_depth, ct, ci, eb, params.max_leaf_size, params.bins, params.exact_below)
+        axis, pos, n_left, n_right = _plan_level(ref_box, node_box, node_start, node_count, chunks,
+                                                 params, depth >= max_depth)
         (words, dst_left, dst_right, leaf_dst, next_box, next_start, next_count, n_refs_next,
-         n_objects, level_cost) = _link_level(node_box, node_start, node_count, axis, pos,
-                                              n_left, n_right, n_nodes_before, n_objects_before, ct, ci)
+         n_objects, level_cost) = _link_level(node_box, node_count, axis, pos, n_left, n_right,
+                                              n_nodes_before, n_objects_before, ct, ci)
         out_tri = np.empty(n_refs_next, np.int32)
         out_box = np.empty((n_refs_next, 6), np.float32)
         objects = np.empty(n_objects, np.int32)
-        _scatter_level(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
-                       dst_left, dst_right, leaf_dst, chunks, out_tri, out_box, objects)
+        _for_each_chunk(_scatter_nodes, chunks, vertices, faces, ref_tri, ref_box, node_box, node_start,
+                        node_count, axis, pos, dst_left, dst_right, leaf_dst, out_tri, out_box, objects)
         node_levels.append(words)
         object_levels.append(objects)
         cost += level_cost
