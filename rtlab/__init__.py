@@ -14,6 +14,10 @@ import os
 # Read only when numba first starts its threads, so it is set before any of them is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from .paths import ensure_numba_cache  # noqa: E402
+
+ensure_numba_cache()   # a read-only install without a writable home still caches compiled code
+
 from .errors import RtlabError  # noqa: E402
 from .kernels import Variant  # noqa: E402
 

@@ -35,9 +35,13 @@ def _load_scene(name: str, size: Optional[int] = None):
 
 def _tree(scene):
     from .accel.cache import load_or_build_kdtree
-    from .accel.kdtree import KdBuildParams
-    with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)..."):
-        return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams())
+    from .accel.kdtree import COMPILING_MESSAGE, KdBuildParams
+    with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)...") as status:
+        def progress(message: str):
+            if message == COMPILING_MESSAGE:
+                console.print(f"{message}...")     # the one noticeable wait of a fresh install: keep it
+            status.update(message)
+        return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams(), progress=progress)
 
 
 def _block_shape(text: str, option: str = "--block") -> tuple[int, int]:

@@ -15,6 +15,7 @@ Scene files: ``$RTLAB_SCENES``, then ``../shared/scenes`` beside the checkout, t
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import platformdirs
@@ -64,6 +65,31 @@ def find_scene_file(relpath: str) -> Path | None:
         if p.is_file():
             return p
     return None
+
+
+def _writable_dir(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(path, os.W_OK | os.X_OK)
+
+
+def ensure_numba_cache() -> None:
+    """Give numba a cache directory where it would have none. numba keeps compiled code in
+    ``__pycache__`` beside the source, else in the user's cache directory (both checked here as
+    numba does); a read-only install run by a user without a writable home has neither, and numba
+    then refuses to define cached functions at all. There, ``$NUMBA_CACHE_DIR`` is set to rtlab's
+    cache (``$RTLAB_CACHE``/numba), or a per-user folder in the temporary directory. Must run
+    before numba is imported (rtlab/__init__.py calls it)."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    if _writable_dir(PACKAGE_DIR / "accel" / "__pycache__") or _writable_dir(Path(platformdirs.user_cache_dir("numba"))):
+        return
+    for candidate in (user_cache_dir() / "numba", Path(tempfile.gettempdir()) / f"rtlab-numba-{getattr(os, 'getuid', lambda: 0)()}"):
+        if _writable_dir(candidate):
+            os.environ["NUMBA_CACHE_DIR"] = str(candidate)
+            return
 
 
 def accel_cache_dir() -> Path:

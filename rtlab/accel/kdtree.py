@@ -73,6 +73,8 @@ from numba import njit
 
 
 LEAF_TAG = 3
+# Told to build_kdtree's progress when numba compiles the builder (a fresh install, once)
+COMPILING_MESSAGE = "compiling the kd-tree builder (first run only: numba caches it)"
 
 # Event types of the exact sweep, in the order they are processed at one position: references
 # ending there leave the right side before planar and starting ones enter the left side.
@@ -669,6 +671,9 @@ def build_kdtree(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams 
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         raise ValueError("face indices out of range of the vertex array")
     tri_box, usable = _triangle_boxes(vertices, faces)
+    if progress is not None and _triangle_boxes.stats.cache_misses:
+        # Not in numba's cache: the rest of the builder is not either
+        progress(COMPILING_MESSAGE)
     ref_tri = np.flatnonzero(usable).astype(np.int32)
     if len(ref_tri) == 0:
         nodes = np.array([[LEAF_TAG, 0]], np.int32)
