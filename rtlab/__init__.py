@@ -14,9 +14,9 @@ import os
 # Read only when numba first starts its threads, so it is set before any of them is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from .paths import ensure_numba_cache  # noqa: E402
+from .paths import ensure_user_cache  # noqa: E402
 
-ensure_numba_cache()   # a read-only install without a writable home still caches compiled code
+ensure_user_cache()    # without a writable home, caches go to the temporary directory
 
 from .errors import RtlabError  # noqa: E402
 from .kernels import Variant  # noqa: E402

@@ -75,21 +75,17 @@ def _writable_dir(path: Path) -> bool:
     return os.access(path, os.W_OK | os.X_OK)
 
 
-def ensure_numba_cache() -> None:
-    """Give numba a cache directory where it would have none. numba keeps compiled code in
-    ``__pycache__`` beside the source, else in the user's cache directory (both checked here as
-    numba does); a read-only install run by a user without a writable home has neither, and numba
-    then refuses to define cached functions at all. There, ``$NUMBA_CACHE_DIR`` is set to rtlab's
-    cache (``$RTLAB_CACHE``/numba), or a per-user folder in the temporary directory. Must run
-    before numba is imported (rtlab/__init__.py calls it)."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
+def ensure_user_cache() -> None:
+    """Caches live in the per-user cache directory ($XDG_CACHE_HOME or ~/.cache): rtlab's trees,
+    numba's compiled builder (numba's choice when the installed package's ``__pycache__`` is
+    read-only), pyopencl's binaries. Where that cannot be written (no home, or a read-only one:
+    some containers and service accounts), numba refuses to define cached functions and pyopencl
+    fails; point $XDG_CACHE_HOME at a per-user folder in the temporary directory instead, so they
+    all still work and cache. Runs before numba or pyopencl is imported (rtlab/__init__.py)."""
+    if _writable_dir(Path(platformdirs.user_cache_dir())):
         return
-    if _writable_dir(PACKAGE_DIR / "accel" / "__pycache__") or _writable_dir(Path(platformdirs.user_cache_dir("numba"))):
-        return
-    for candidate in (user_cache_dir() / "numba", Path(tempfile.gettempdir()) / f"rtlab-numba-{getattr(os, 'getuid', lambda: 0)()}"):
-        if _writable_dir(candidate):
-            os.environ["NUMBA_CACHE_DIR"] = str(candidate)
-            return
+    uid = getattr(os, "getuid", lambda: "user")()
+    os.environ["XDG_CACHE_HOME"] = str(Path(tempfile.gettempdir()) / f"rtlab-cache-{uid}")
 
 
 def accel_cache_dir() -> Path:
