@@ -200,12 +200,14 @@ def _clip_root(o, d, bounds):
 
 @njit(cache=True)
 def _trace_kd(nodes, split, objects, bounds, depth, o, d, tris):
-    """Closest hit by a front-to-back stack traversal. Cell ranges are inclusive and a hit only
-    counts inside the cell it is found in (up to rounding), so a reference missing from the cell
-    that holds the hit point loses the hit: this checks the build, not just the traversal."""
+    """Closest hit by a front-to-back stack traversal, and the number of triangle tests it made.
+    Cell ranges are inclusive and a hit only counts inside the cell it is found in (up to
+    rounding), so a reference missing from the cell that holds the hit point loses the hit: this
+    checks the build, not just the traversal."""
     tmin, tmax = _clip_root(o, d, bounds)
+    tests = 0
     if tmin > tmax:
-        return np.inf
+        return np.inf, tests
     eps = T_RTOL * max(tmax, 1.0)
     st_node = np.empty(depth + 2, np.int64)
     st_tmin = np.empty(depth + 2)
@@ -229,7 +231,7 @@ def _trace_kd(nodes, split, objects, bounds, depth, o, d, tris):
                 ts = (p - o[axis]) / d[axis]
                 below = o[axis] < p or (o[axis] == p and d[axis] < 0.0)
                 near, far = (left, left + 1) if below else (left + 1, left)
-                if ts > tmax or ts < 0.0:
+                if ts > tmax or ts <= 0.0:     # -0.0 too: the origin lies in the plane
                     node = near
                 elif ts < tmin:
                     node = far
@@ -239,6 +241,7 @@ def _trace_kd(nodes, split, objects, bounds, depth, o, d, tris):
                     node, tmax = near, ts
             w = nodes[node, 0]
         off = nodes[node, 1]
+        tests += w >> 2
         for k in range(off, off + (w >> 2)):
             t = _moller_trumbore(o, d, tris[objects[k]])
             if tmin - eps <= t <= tmax + eps and t < best:
@@ -248,19 +251,21 @@ def _trace_kd(nodes, split, objects, bounds, depth, o, d, tris):
         while sp > 0 and st_tmin[sp - 1] > best + eps:
             sp -= 1
         if sp == 0:
-            return best
+            return best, tests
         sp -= 1
         node, tmin, tmax = st_node[sp], st_tmin[sp], st_tmax[sp]
 
 
 @njit(cache=True)
 def _trace_all(nodes, split, objects, bounds, depth, origins, dirs, tris):
+    """(kd-tree t, brute-force t, triangle tests of the kd traversal) of every ray."""
     kd = np.empty(origins.shape[0])
     brute = np.empty(origins.shape[0])
+    tests = np.empty(origins.shape[0], np.int64)
     for r in range(origins.shape[0]):
-        kd[r] = _trace_kd(nodes, split, objects, bounds, depth, origins[r], dirs[r], tris)
+        kd[r], tests[r] = _trace_kd(nodes, split, objects, bounds, depth, origins[r], dirs[r], tris)
         brute[r] = _brute_force(origins[r], dirs[r], tris)
-    return kd, brute
+    return kd, brute, tests
 
 
 # ------------------------------------------------------------------------------------------------
@@ -308,6 +313,28 @@ def _with_degenerates(rng):
     base = len(v)
     f = np.concatenate([f, base + np.arange(12, dtype=np.int32).reshape(-1, 3)])
     return np.concatenate([v, extra]), f
+
+
+def _ground_with_objects(quads=48):
+    """The default scene's shape in small: a ground of quads x quads squares at y = 0 with
+    spheres and a box standing on it (the box's bottom lies in the ground's plane)."""
+    xs = np.linspace(-4.0, 4.0, quads + 1)
+    gx, gz = np.meshgrid(xs, xs, indexing="xy")
+    ground_v = np.stack([gx.ravel(), np.zeros(gx.size), gz.ravel()], 1)
+    r, c = np.meshgrid(np.arange(quads), np.arange(quads), indexing="ij")
+    v00 = (r * (quads + 1) + c).ravel()
+    ground_f = np.stack([np.stack([v00, v00 + quads + 1, v00 + 1], 1),
+                         np.stack([v00 + 1, v00 + quads + 1, v00 + quads + 2], 1)], 1).reshape(-1, 3)
+    parts = [trimesh.Trimesh(ground_v, ground_f, process=False)]
+    for centre, radius in (((0.0, 1.0, 0.0), 1.0), ((-2.5, 0.6, 1.5), 0.6), ((2.2, 0.4, -1.8), 0.4)):
+        sphere = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+        sphere.apply_translation(centre)
+        parts.append(sphere)
+    box = trimesh.creation.box(extents=(1.2, 1.2, 1.2))
+    box.apply_translation((2.0, 0.6, 2.0))
+    parts.append(box)
+    m = trimesh.util.concatenate(parts)
+    return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32), len(ground_f)
 
 
 def _triangles(vertices, faces):
@@ -400,8 +427,8 @@ def _check_rays(tree: KdTree, tris, usable, rng, n_rays):
     """(e)."""
     origins, dirs = _rays(rng, tree.bounds, n_rays)
     ok_tris = np.where(usable[:, None, None], tris, np.nan)       # unusable triangles never hit
-    kd, brute = _trace_all(tree.nodes, tree.split_pos().astype(np.float64), tree.objects,
-                           tree.bounds.astype(np.float64), tree.depth, origins, dirs, ok_tris)
+    kd, brute, _ = _trace_all(tree.nodes, tree.split_pos().astype(np.float64), tree.objects,
+                              tree.bounds.astype(np.float64), tree.depth, origins, dirs, ok_tris)
     hits = np.isfinite(brute)
     assert hits.mean() > 0.1, "too few rays hit: the test would prove little"
     bad = ~np.isclose(kd, brute, rtol=T_RTOL, atol=0.0)
@@ -457,6 +484,35 @@ def test_planar_scene():
     v[:, 2] = 0.25
     tree, _ = _check_all(v, f, n_rays=1000)
     assert tree.bounds[0, 2] == tree.bounds[1, 2] == np.float32(0.25)
+
+
+def test_ground_goes_to_flat_cells():
+    """Triangles lying in a node's face are cut off into zero-thickness cells (flat cells), so the
+    empty space above a ground plane is not split into columns that each keep ground triangles:
+    nearly every ground reference sits in a flat leaf, and rays grazing the ground (a camera
+    looking over it at a shallow angle, the default scene's view) test few triangles. Before flat
+    cells: no flat leaf, and 37 triangle tests per ray instead of 3.4 (SAH cost 82 instead of 25)."""
+    vertices, faces, n_ground = _ground_with_objects()
+    tree, usable = _check_all(vertices, faces, n_rays=1000)
+    cells, _ = _cells(tree.nodes, tree.split_pos().astype(np.float64), tree.bounds.astype(np.float64))
+    leaves = np.flatnonzero(tree.is_leaf())
+    counts = tree.child_or_count()[leaves]
+    refs = np.concatenate([tree.objects[tree.nodes[k, 1]:tree.nodes[k, 1] + n] for k, n in zip(leaves, counts)])
+    leaf_of_ref = np.repeat(leaves, counts)
+    ground_refs = refs < n_ground
+    in_flat = cells[leaf_of_ref, 1] == cells[leaf_of_ref, 4]
+    assert in_flat[ground_refs].mean() > 0.9, f"{in_flat[ground_refs].mean():.0%} of ground references in flat leaves"
+    # A camera 4 units up and 9 back looking at the ground's centre: most rays graze the ground
+    rng = np.random.default_rng(5)
+    eye = np.array([0.0, 4.0, 9.0])
+    targets = np.stack([rng.uniform(-4, 4, 2000), np.zeros(2000), rng.uniform(-4, 4, 2000)], 1)
+    dirs = _unit(targets - eye)
+    tris, _ = _triangles(vertices, faces)
+    kd, brute, tests = _trace_all(tree.nodes, tree.split_pos().astype(np.float64), tree.objects,
+                                  tree.bounds.astype(np.float64), tree.depth, np.tile(eye, (2000, 1)), dirs,
+                                  np.where(usable[:, None, None], tris, np.nan))
+    assert np.allclose(kd, brute, rtol=T_RTOL, atol=0.0)
+    assert tests.mean() < 12, f"{tests.mean():.1f} triangle tests per ray"
 
 
 @pytest.mark.parametrize("faces", [np.zeros((0, 3), np.int32), np.array([[0, 0, 1]], np.int32)],
