@@ -63,6 +63,7 @@ directory when that is read-only).
 """
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -383,10 +384,15 @@ def _count_sides(ref_box, start, n, node_box, axis, p):
 
 
 @njit(nogil=True, cache=True)
-def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb, max_leaf,
-                exact_below, binned, counts, events, axis, pos, n_left, n_right, first, last):
+def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb, max_leaf, nbins,
+                exact_below, axis, pos, n_left, n_right, first, last):
     """Choose the split of nodes first..last-1 (axis stays -1: a leaf) and count its children's
-    references. counts (bins), events (twice the largest node's references): scratch."""
+    references."""
+    most = 0
+    for i in range(first, last):
+        most = max(most, node_count[i])
+    events = np.empty(2 * most, np.int64)
+    counts = np.empty((2, 3, max(nbins, 1)), np.int64)
     scale = np.empty(3)
     for i in range(first, last):
         n = node_count[i]
@@ -394,7 +400,7 @@ def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb,
         if n <= max_leaf or not area > 0.0:
             continue
         s = node_start[i]
-        a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], binned and n > exact_below,
+        a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], nbins > 0 and n > exact_below,
                                  scale, counts, events, 1.0 / area, ct, ci, eb)
         if a >= 0 and cost < ci * n:
             axis[i] = a
@@ -632,6 +638,16 @@ def _threads() -> int:
 _pool: ThreadPoolExecutor | None = None
 
 
+def _forget_pool() -> None:
+    # A forked child inherits the pool object but not its threads: it would wait forever
+    global _pool
+    _pool = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def _for_each_chunk(kernel, chunks: np.ndarray, *args) -> None:
     """kernel(*args, first, last) for every run of nodes chunks[c]..chunks[c + 1], on a pool of
     threads (the kernels release the GIL). Threads rather than numba's prange: a parallel
@@ -696,23 +712,11 @@ def _plan_level(ref_box, node_box, node_start, node_count, chunks, params: KdBui
     pos = np.zeros(n, np.float32)
     n_left = np.zeros(n, np.int64)
     n_right = np.zeros(n, np.int64)
-    if leaves_only:
-        return axis, pos, n_left, n_right
-    binned = params.bins > 0
-    # Scratch for each run of nodes: bin counts, and sweep events (two per reference)
-    scratch = [(np.empty((2, 3, max(params.bins, 1)), np.int64),
-                np.empty(2 * int(node_count[first:last].max()), np.int64))
-               for first, last in zip(chunks[:-1], chunks[1:])]
-    scratch_of = {int(first): s for first, s in zip(chunks[:-1], scratch)}
-
-    def plan_run(first, last):
-        counts, events = scratch_of[first]
-        _plan_nodes(ref_box, ref_box.view(np.int32), node_box, node_start, node_count,
-                    float(params.cost_traversal), float(params.cost_intersect), float(params.empty_bonus),
-                    int(params.max_leaf_size), int(params.exact_below), binned, counts, events, axis, pos,
-                    n_left, n_right, first, last)
-
-    _for_each_chunk(plan_run, chunks)
+    if not leaves_only:
+        _for_each_chunk(_plan_nodes, chunks, ref_box, ref_box.view(np.int32), node_box, node_start,
+                        node_count, float(params.cost_traversal), float(params.cost_intersect),
+                        float(params.empty_bonus), int(params.max_leaf_size), int(params.bins),
+                        int(params.exact_below), axis, pos, n_left, n_right)
     return axis, pos, n_left, n_right
 
 
