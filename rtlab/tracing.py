@@ -23,13 +23,14 @@ _device_scenes: dict = {}
 DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its buffers) past that
 
 
-def device_scene(scene: Scene, backend) -> DeviceScene:
+def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
     """The scene uploaded to ``backend``, once per (scene object, backend), for the most recently
-    used few: benches that derive many scenes (material presets) do not hold every upload."""
+    used few: benches that derive many scenes (material presets) do not hold every upload.
+    ``tree``: upload with this kd-tree instead of the default build (benches comparing builds)."""
     key = (id(scene), id(backend))
     entry = _device_scenes.pop(key, None)
-    if entry is None or entry[0] is not scene:
-        entry = (scene, DeviceScene.upload(backend, scene))
+    if entry is None or entry[0] is not scene or (tree is not None and entry[1].tree is not tree):
+        entry = (scene, DeviceScene.upload(backend, scene, tree))
     _device_scenes[key] = entry            # most recent last
     while len(_device_scenes) > DEVICE_SCENES_KEPT:
         _device_scenes.pop(next(iter(_device_scenes)))

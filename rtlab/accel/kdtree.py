@@ -93,10 +93,12 @@ class KdBuildParams:
     max_depth: int = 0
     bins: int = 32                    # binned SAH for large nodes; 0: exact sweep everywhere
     exact_below: int = 32             # nodes with at most this many references sweep exactly
+    flat_cells: bool = True           # cut triangles lying in a node's face off into flat cells
 
     def key(self) -> str:
         return (f"kd-ct{self.cost_traversal}-ci{self.cost_intersect}-eb{self.empty_bonus}"
-                f"-ml{self.max_leaf_size}-md{self.max_depth}-b{self.bins}-x{self.exact_below}")
+                f"-ml{self.max_leaf_size}-md{self.max_depth}-b{self.bins}-x{self.exact_below}"
+                f"-fc{int(self.flat_cells)}")
 
     def depth_limit(self, n_triangles: int) -> int:
         if self.max_depth > 0:
@@ -271,10 +273,11 @@ def _sort_keys(keys):
 
 @njit(cache=True)
 def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, inv_area, ct, ci,
-                eb):
+                eb, flat_cells):
     """Exact SAH sweep (Wald & Havran 2006, section 4.2) over the start/end/planar events of
     axis a in the window w_lo <= x < w_hi; every distinct event position strictly inside the
-    node is a candidate plane. References entirely before the window only enter the counts."""
+    node is a candidate plane, and with flat_cells the node's faces where triangles lie in them.
+    References entirely before the window only enter the counts."""
     lo, hi = node_box[a], node_box[3 + a]
     n_left, n_right = 0, n
     n_flat_lo = n_flat_hi = 0       # references lying in the node's lower / upper face
@@ -324,11 +327,11 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
         n_planar = n_start = 0
     # A plane on the node's face cuts the references lying in it off into a flat cell (module
     # docstring): the rest of the node keeps its box without them
-    if n_flat_lo > 0:
+    if flat_cells and n_flat_lo > 0:
         cost = _split_cost(k0, k1, lo64, hi64, lo64, n_flat_lo, n - n_flat_lo, ct, ci, eb)
         if cost < best_cost:
             best_cost, best_pos = cost, lo
-    if n_flat_hi > 0:
+    if flat_cells and n_flat_hi > 0:
         cost = _split_cost(k0, k1, lo64, hi64, hi64, n - n_flat_hi, n_flat_hi, ct, ci, eb)
         if cost < best_cost:
             best_cost, best_pos = cost, hi
@@ -337,7 +340,7 @@ def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, in
 
 @njit(cache=True)
 def _best_split(ref_box, ref_bits, start, n, node_box, binned, scale, counts, events, inv_area,
-                ct, ci, eb):
+                ct, ci, eb, flat_cells):
     """Cheapest split (axis, position, cost) of a node over all three axes; axis -1 if none.
     Binned: pick each axis' cheapest bin boundary, then sweep exactly the events within _WINDOW
     bins of it, so planes still sit on clipped triangle bounds (as in the exact sweep) at a
@@ -357,7 +360,7 @@ def _best_split(ref_box, ref_bits, start, n, node_box, binned, scale, counts, ev
             w_lo = node_box[a] + (k - _WINDOW) / scale[a]
             w_hi = node_box[a] + (k + _WINDOW) / scale[a]
         p, cost = _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events,
-                              inv_area, ct, ci, eb)
+                              inv_area, ct, ci, eb, flat_cells)
         if cost < best_cost:
             best_cost, best_axis, best_pos = cost, a, p
     return best_axis, best_pos, best_cost
@@ -385,7 +388,7 @@ def _count_sides(ref_box, start, n, node_box, axis, p):
 
 @njit(nogil=True, cache=True)
 def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb, max_leaf, nbins,
-                exact_below, axis, pos, n_left, n_right, first, last):
+                exact_below, flat_cells, axis, pos, n_left, n_right, first, last):
     """Choose the split of nodes first..last-1 (axis stays -1: a leaf) and count its children's
     references."""
     most = 0
@@ -401,7 +404,7 @@ def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb,
             continue
         s = node_start[i]
         a, p, cost = _best_split(ref_box, ref_bits, s, n, node_box[i], nbins > 0 and n > exact_below,
-                                 scale, counts, events, 1.0 / area, ct, ci, eb)
+                                 scale, counts, events, 1.0 / area, ct, ci, eb, flat_cells)
         if a >= 0 and cost < ci * n:
             axis[i] = a
             pos[i] = p
@@ -716,7 +719,7 @@ def _plan_level(ref_box, node_box, node_start, node_count, chunks, params: KdBui
         _for_each_chunk(_plan_nodes, chunks, ref_box, ref_box.view(np.int32), node_box, node_start,
                         node_count, float(params.cost_traversal), float(params.cost_intersect),
                         float(params.empty_bonus), int(params.max_leaf_size), int(params.bins),
-                        int(params.exact_below), axis, pos, n_left, n_right)
+                        int(params.exact_below), bool(params.flat_cells), axis, pos, n_left, n_right)
     return axis, pos, n_left, n_right
 
 
