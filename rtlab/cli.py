@@ -1,6 +1,7 @@
 """The `rtlab` command line: info, scenes, build, render (bench, grade, inspect join as labs land).
 
-Errors the user can act on (RtlabError) print one line and exit with status 2, never a traceback.
+Errors the user can act on (RtlabError, and typer's usage errors: an unknown option, a value out
+of range) print one line on stderr and exit with status 2, never a traceback (``main``).
 """
 from __future__ import annotations
 
