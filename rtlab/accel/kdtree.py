@@ -386,18 +386,34 @@ def _count_sides(ref_box, start, n, node_box, axis, p):
     return n_left, n_right
 
 
+@njit(cache=True)
+def _nodes_of_runs(runs, run0, run_step):
+    """Node indices of runs run0, run0 + run_step, ... (run r: runs[r] to runs[r + 1] - 1)."""
+    total = 0
+    for r in range(run0, runs.shape[0] - 1, run_step):
+        total += runs[r + 1] - runs[r]
+    nodes = np.empty(total, np.int64)
+    k = 0
+    for r in range(run0, runs.shape[0] - 1, run_step):
+        for i in range(runs[r], runs[r + 1]):
+            nodes[k] = i
+            k += 1
+    return nodes
+
+
 @njit(nogil=True, cache=True)
 def _plan_nodes(ref_box, ref_bits, node_box, node_start, node_count, ct, ci, eb, max_leaf, nbins,
-                exact_below, flat_cells, axis, pos, n_left, n_right, first, last):
-    """Choose the split of nodes first..last-1 (axis stays -1: a leaf) and count its children's
-    references."""
+                exact_below, flat_cells, axis, pos, n_left, n_right, runs, run0, run_step):
+    """Choose the split of the nodes in runs run0, run0 + run_step, ... (run r: nodes runs[r] to
+    runs[r + 1] - 1; axis stays -1: a leaf) and count its children's references."""
     most = 0
-    for i in range(first, last):
-        most = max(most, node_count[i])
+    for r in range(run0, runs.shape[0] - 1, run_step):
+        for i in range(runs[r], runs[r + 1]):
+            most = max(most, node_count[i])
     events = np.empty(2 * most, np.int64)
     counts = np.empty((2, 3, max(nbins, 1)), np.int64)
     scale = np.empty(3)
-    for i in range(first, last):
+    for i in _nodes_of_runs(runs, run0, run_step):
         n = node_count[i]
         area = _box_area(node_box[i])
         if n <= max_leaf or not area > 0.0:
@@ -524,13 +540,13 @@ def _copy_row(dst, src):
 
 @njit(nogil=True, cache=True)
 def _scatter_nodes(vertices, faces, ref_tri, ref_box, node_box, node_start, node_count, axis, pos,
-                   dst_left, dst_right, leaf_dst, out_tri, out_box, objects, first, last):
-    """Write the references of split nodes first..last-1 to their children (clipping
-    straddlers) and the triangle lists of its leaves to ``objects``. Rows are copied element by
-    element: array assignment would compile numba's broadcasting (~2 s on first use)."""
+                   dst_left, dst_right, leaf_dst, out_tri, out_box, objects, runs, run0, run_step):
+    """Write the references of the split nodes in runs run0, run0 + run_step, ... to their
+    children (clipping straddlers) and the triangle lists of its leaves to ``objects``. Rows are
+    copied element by element: array assignment would compile numba's broadcasting (~2 s)."""
     poly = np.empty((2, 16, 3))
     ext = np.empty((4, 3))
-    for i in range(first, last):
+    for i in _nodes_of_runs(runs, run0, run_step):
         s, n = node_start[i], node_count[i]
         a = axis[i]
         if a < 0:
@@ -651,19 +667,19 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pool)
 
 
-def _for_each_chunk(kernel, chunks: np.ndarray, *args) -> None:
-    """kernel(*args, first, last) for every run of nodes chunks[c]..chunks[c + 1], on a pool of
-    threads (the kernels release the GIL). Threads rather than numba's prange: a parallel
-    function costs seconds more to compile on first use, and the runs are planned here anyway."""
+def _on_threads(kernel, runs: np.ndarray, *args) -> None:
+    """kernel(*args, runs, t, T) on T threads of a pool (the kernels release the GIL), thread t
+    taking runs t, t + T, ... of the level's nodes (a static schedule, as prange's). Threads
+    rather than numba's prange: a parallel function costs seconds more to compile on first use,
+    and the runs are planned here anyway."""
     global _pool
-    runs = [(int(chunks[c]), int(chunks[c + 1])) for c in range(len(chunks) - 1)]
-    if len(runs) == 1 or _threads() == 1:
-        for first, last in runs:
-            kernel(*args, first, last)
+    n_threads = min(_threads(), len(runs) - 1)
+    if n_threads <= 1:
+        kernel(*args, runs, 0, 1)
         return
     if _pool is None:
         _pool = ThreadPoolExecutor(_threads(), thread_name_prefix="rtlab-kd")
-    for done in [_pool.submit(kernel, *args, first, last) for first, last in runs]:
+    for done in [_pool.submit(kernel, *args, runs, t, n_threads) for t in range(n_threads)]:
         done.result()
 
 
@@ -716,7 +732,7 @@ def _plan_level(ref_box, node_box, node_start, node_count, chunks, params: KdBui
     n_left = np.zeros(n, np.int64)
     n_right = np.zeros(n, np.int64)
     if not leaves_only:
-        _for_each_chunk(_plan_nodes, chunks, ref_box, ref_box.view(np.int32), node_box, node_start,
+        _on_threads(_plan_nodes, chunks, ref_box, ref_box.view(np.int32), node_box, node_start,
                         node_count, float(params.cost_traversal), float(params.cost_intersect),
                         float(params.empty_bonus), int(params.max_leaf_size), int(params.bins),
                         int(params.exact_below), bool(params.flat_cells), axis, pos, n_left, n_right)
@@ -744,7 +760,7 @@ def _build_levels(vertices, faces, ref_tri, ref_box, bounds, params: KdBuildPara
         out_tri = np.empty(n_refs_next, np.int32)
         out_box = np.empty((n_refs_next, 6), np.float32)
         objects = np.empty(n_objects, np.int32)
-        _for_each_chunk(_scatter_nodes, chunks, vertices, faces, ref_tri, ref_box, node_box, node_start,
+        _on_threads(_scatter_nodes, chunks, vertices, faces, ref_tri, ref_box, node_box, node_start,
                         node_count, axis, pos, dst_left, dst_right, leaf_dst, out_tri, out_box, objects)
         node_levels.append(words)
         object_levels.append(objects)
