@@ -143,6 +143,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     from .kernels import Variant
     from .rendering import render as do_render, save_png
     variant = Variant(traversal=traversal, intersection=isect, block=_block_shape(block))
+    out.parent.mkdir(parents=True, exist_ok=True)     # before the work: a bad --out fails at once
     from .backends import get_backend
     be = get_backend(backend, device)
     sc = _load_scene(scene, size)

@@ -168,3 +168,13 @@ def test_no_arguments_shows_help(tmp_path):
     code, out, err = run_cli([], tmp_path)
     assert "Traceback" not in out + err and "Usage" in out and "render" in out
     assert not err.strip()
+
+
+def test_unwritable_output_is_one_line(tmp_path):
+    """An --out below a file: one line naming the path, before any rendering."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code, out, err = run_cli(["render", "--size", "8", "--out", str(blocker / "x.png")], tmp_path)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code != 0 and "Traceback" not in out + err
+    assert len(lines) == 1 and str(blocker) in lines[0] and "Mrays/s" not in out
