@@ -1,25 +1,37 @@
 # Two commands set everything up on a fresh Debian 12 machine:
 #   make render   - installs PoCL and rtlab (in .venv), renders the default scene to render.png
 #   make test     - the same set-up plus the dev tools, then the whole test suite on PoCL
+# (rtlab also installs without this Makefile: `pip install .` or a wheel works from any directory,
+# kernels and lab steps ship inside the package; scripts/check_wheel.sh checks that.)
 PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup render test bench-build
+.PHONY: setup setup-dev render test bench-build check-wheel
 setup: $(VENV)/.installed
+setup-dev: $(VENV)/.installed-dev
 
 $(VENV)/.installed: pyproject.toml scripts/install_system_deps.sh
 	bash scripts/install_system_deps.sh
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e .
+	touch $@
+
+# pytest, jupytext, pyvista (large): only what the tests need, not what render needs
+$(VENV)/.installed-dev: $(VENV)/.installed
 	$(BIN)/pip install -q -e '.[dev,viz]'
 	touch $@
 
+# Whitted ray tracing of the procedural default scene: shadows, a mirror and a glass sphere
 render: setup
-	$(BIN)/rtlab render --out render.png
+	$(BIN)/rtlab render --shadows one-pass --bounces 2 --out render.png
 
-test: setup
+test: setup-dev
 	$(BIN)/python -m pytest -q --timeout=900
 
 bench-build: setup
 	$(BIN)/python benchmarks/bench_kdtree_build.py
+
+check-wheel: setup
+	bash scripts/check_wheel.sh

@@ -14,6 +14,10 @@ import os
 # Read only when numba first starts its threads, so it is set before any of them is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from .paths import ensure_user_cache  # noqa: E402
+
+ensure_user_cache()    # without a writable home, caches go to the temporary directory
+
 from .errors import RtlabError  # noqa: E402
 from .kernels import Variant  # noqa: E402
 

@@ -1,9 +1,11 @@
 """The `rtlab` command line: info, scenes, build, render (bench, grade, inspect join as labs land).
 
-Errors the user can act on (RtlabError) print one line and exit with status 2, never a traceback.
+Errors the user can act on (RtlabError, and typer's usage errors: an unknown option, a value out
+of range) print one line on stderr and exit with status 2, never a traceback (``main``).
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -23,7 +25,7 @@ PAPER_TABLE2 = {"bunny": (69451, 379713, 120511, 2.72, "11MB"), "sponza": (66454
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL.")
 console = Console()
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)   # an error stays one line
 
 
 def _load_scene(name: str, size: Optional[int] = None):
@@ -34,9 +36,30 @@ def _load_scene(name: str, size: Optional[int] = None):
 
 def _tree(scene):
     from .accel.cache import load_or_build_kdtree
-    from .accel.kdtree import KdBuildParams
-    with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)..."):
-        return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams())
+    from .accel.kdtree import COMPILING_MESSAGE, KdBuildParams
+    with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)...") as status:
+        def progress(message: str):
+            if message == COMPILING_MESSAGE:
+                console.print(f"{message}...")     # the one noticeable wait of a fresh install: keep it
+            status.update(message)
+        return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams(), progress=progress)
+
+
+def _block_shape(text: str, option: str = "--block") -> tuple[int, int]:
+    """'32x4' -> (32, 4); anything else is a one-line error naming the option."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise RtlabError(f"{option} must look like 32x4 (two positive whole numbers), got '{text}'")
+    return int(parts[0]), int(parts[1])
+
+
+def _int_list(text: str, option: str) -> list[int]:
+    """'1,2,3' -> [1, 2, 3]; anything else is a one-line error naming the option."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    try:
+        return [int(t) for t in items]
+    except ValueError:
+        raise RtlabError(f"{option} must be whole numbers separated by commas, got '{text}'") from None
 
 
 @app.command()
@@ -100,17 +123,17 @@ def build(scene: str = typer.Argument("default", help="preset name, 'default' or
 def render(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
            backend: Optional[str] = typer.Option(None, help="opencl, cuda or auto ($RTLAB_BACKEND)"),
            device: Optional[str] = typer.Option(None, help="device name substring or index ($RTLAB_DEVICE)"),
-           size: Optional[int] = typer.Option(None, help="image width = height (default: the preset's, 1024)"),
+           size: Optional[int] = typer.Option(None, min=1, help="image width = height (default: the preset's, 1024)"),
            out: Path = typer.Option(Path("render.png"), help="PNG to write"),
            check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
-           repeats: int = typer.Option(5, help="timed launches (median reported)"),
+           repeats: int = typer.Option(5, min=1, help="timed launches (median reported)"),
            traversal: Optional[str] = typer.Option(None, help="traversal (default: bvh on a GPU, stack on a CPU)"),
            isect: Optional[str] = typer.Option(None, help="triangle intersection test (default: watertight; the "
                                                "paper's: moller)"),
            block: Optional[str] = typer.Option(None, help="block / work-group shape WxH (default: 8x16 on a GPU, "
                                                "32x4 on a CPU)"),
            shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
-           bounces: Optional[int] = typer.Option(None, help="reflection/refraction bounces (kernel tree)"),
+           bounces: Optional[int] = typer.Option(None, min=0, help="reflection/refraction bounces (kernel tree)"),
            materials: str = typer.Option("auto", help="with --shadows/--bounces: file, mtl, bart, paper, "
                                          "paper-refraction, auto (rtlab.scene.materials)"),
            fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
@@ -121,9 +144,10 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
     from .rendering import render as do_render, save_png
     from .tracing import default_variant
+    out.parent.mkdir(parents=True, exist_ok=True)     # before the work: a bad --out fails at once
     from .backends import get_backend
     be = get_backend(backend, device)
-    chosen = {"traversal": traversal, "intersection": isect, "block": _blocks(block)[0] if block else None}
+    chosen = {"traversal": traversal, "intersection": isect, "block": _block_shape(block) if block else None}
     variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
     sc = _load_scene(scene, size)
     _tree(sc)
@@ -173,9 +197,9 @@ def _bench_scenes(scenes: str, views: str, size: int):
 def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
                   backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                   device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
-                  size: int = typer.Option(1024, help="image width = height"),
+                  size: int = typer.Option(1024, min=1, help="image width = height"),
                   views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
-                  repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                  repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
                   check: bool = typer.Option(True, help="error against the float64 reference"),
                   traversal: str = typer.Option("stack"), isect: str = typer.Option("moller"),
                   block: str = typer.Option("32x4"),
@@ -184,8 +208,7 @@ def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help
     from .backends import get_backend
     from .bench import PAPER_STACK_FPS, bench_render, rows_markdown
     from .kernels import Variant
-    bx, by = (int(v) for v in block.lower().split("x"))
-    variant = Variant(traversal=traversal, intersection=isect, block=(bx, by))
+    variant = Variant(traversal=traversal, intersection=isect, block=_block_shape(block))
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     rows = []
     for scene, view in _bench_scenes(scenes, views, size):
@@ -229,8 +252,7 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
     from .benches.rays import COLUMNS, bench_rays, make_rays, rays_markdown, table_rows
     from .kernels import Variant
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
-    (bx, by), = _blocks(block)
-    variants = [Variant(traversal=t, intersection=isect, block=(bx, by)) for t in traversals.split(",") if t]
+    variants = [Variant(traversal=t, intersection=isect, block=_block_shape(block)) for t in traversals.split(",") if t]
     rows = []
     for size in (int(s) for s in sizes.split(",") if s):
         for view in (v for v in views.split(",") if v):
@@ -258,10 +280,10 @@ def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separ
                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                     device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
                     isects: str = typer.Option("moller,wald,plucker,watertight", help="tests to time"),
-                    size: int = typer.Option(1024, help="rays: width = height of the camera (paper: 1024)"),
-                    triangles: int = typer.Option(1000, help="triangles in the loop (paper: the first 1000)"),
-                    repeats: int = typer.Option(5, help="timed launches; the median is reported"),
-                    render_size: int = typer.Option(1024, help="in-render effect at this size; 0: skip it"),
+                    size: int = typer.Option(1024, min=1, help="rays: width = height of the camera (paper: 1024)"),
+                    triangles: int = typer.Option(1000, min=1, help="triangles in the loop (paper: the first 1000)"),
+                    repeats: int = typer.Option(5, min=1, help="timed launches; the median is reported"),
+                    render_size: int = typer.Option(1024, min=0, help="in-render effect at this size; 0: skip it"),
                     check: bool = typer.Option(True, help="error against the float64 reference"),
                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """The paper's Table 3: each triangle test on the first 1000 triangles (time, registers, bytes per
@@ -312,8 +334,10 @@ def bench_robustness(backends: str = typer.Option("auto", help="comma-separated:
     and hangs of every triangle test x traversal against the float64 reference."""
     from .backends import get_backend
     from .robustness import TABLE_COLUMNS, aggregate, row_cells, rows_table, run_robustness
+    if any(c not in ("default", "0", "1") for c in conservative.split(",")):
+        raise RtlabError(f"--conservative takes default, 0, 1 or 0,1, got '{conservative}'")
     cons = [None if c == "default" else int(c) for c in conservative.split(",")]
-    fams = [int(f) for f in families.split(",") if f]
+    fams = _int_list(families, "--families")
     rows = []
     for b in backends.split(","):
         be = get_backend(b, device if b == "opencl" else None)
@@ -338,12 +362,12 @@ def bench_robustness(backends: str = typer.Option("auto", help="comma-separated:
 def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help="Table 5 shadow rows (presets)"),
                   bounce_scenes: str = typer.Option("sponza,kitchen", help="Table 5 bounce rows (presets)"),
                   bounces: str = typer.Option("1,2,3", help="bounce depths of the bounce rows"),
-                  special_bounces: int = typer.Option(3, help="depth of the specialised-vs-general rows; -1: skip"),
+                  special_bounces: int = typer.Option(3, min=-1, help="depth of the specialised-vs-general rows; -1: skip"),
                   backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                   device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
-                  size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
-                  repeats: int = typer.Option(10, help="timed frames; the median is reported"),
-                  check_size: int = typer.Option(128, help="error against the float64 reference at this size; 0: skip"),
+                  size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
+                  repeats: int = typer.Option(10, min=1, help="timed frames; the median is reported"),
+                  check_size: int = typer.Option(128, min=0, help="error against the float64 reference at this size; 0: skip"),
                   materials: str = typer.Option("paper", help="materials of the bounce rows (rtlab.scene.materials)"),
                   md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
     """The paper's Table 5 (shadows one-pass vs two-pass, 1-3 bounces) and specialised vs general kernels."""
@@ -362,7 +386,7 @@ def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help
                 with console.status(f"{name} shadows {mode} on {be.name}..."):
                     rows.append(bench_shadows(scenes[name], be, mode, size, repeats, check_size))
         for name in [s for s in bounce_scenes.split(",") if s]:
-            for depth in [int(b) for b in bounces.split(",") if b]:
+            for depth in _int_list(bounces, "--bounces"):
                 with console.status(f"{name} {depth} bounces on {be.name}..."):
                     rows.append(bench_bounces(scenes[name], be, depth, size, repeats, check_size, materials=materials))
         if special_bounces >= 0:
@@ -419,12 +443,12 @@ _register_course_commands(app)
 def bench_traversal(scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conference", help="comma-separated presets"),
                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                     device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
-                    size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                    size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                     views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
-                    repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                    repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
                     check: bool = typer.Option(True, help="error against the float64 reference"),
                     traversals: str = typer.Option("stack,packet,restart,shortstack,ropes,bvh"),
-                    short_stack: int = typer.Option(4, help="short-stack entries"),
+                    short_stack: int = typer.Option(4, min=1, help="short-stack entries"),
                     isect: str = typer.Option("moller"), block: str = typer.Option("32x4"),
                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """The paper's Table 4: every traversal variant (and the BVH): fps, Mrays/s, registers,
@@ -432,8 +456,7 @@ def bench_traversal(scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conf
     from .backends import get_backend
     from .benches.traversal import bench_table4, resources_text, speedup_text, table4_markdown
     from .kernels import Variant
-    bx, by = (int(v) for v in block.lower().split("x"))
-    base = Variant(intersection=isect, block=(bx, by), short_stack=short_stack)
+    base = Variant(intersection=isect, block=_block_shape(block), short_stack=short_stack)
     names = [t for t in traversals.split(",") if t]
     for t in names:
         base.with_(traversal=t)                   # unknown names fail here, before any work
@@ -475,19 +498,16 @@ def _command(name: str) -> str:
 
 
 def _blocks(text: str) -> list[tuple[int, int]]:
-    try:
-        return [tuple(int(v) for v in b.lower().split("x")) for b in text.split(",") if b]
-    except ValueError:
-        raise RtlabError(f"--block: block shapes look like 32x4 (several: 2x32,4x32), got '{text}'") from None
+    return [_block_shape(b, "--blocks") for b in text.split(",") if b]
 
 
 @bench_app.command("memory")
 def bench_memory_cmd(scenes: str = typer.Option("bunny,dragon", help="comma-separated presets"),
                      backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                      device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
-                     size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                     size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                      views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill"),
-                     repeats: int = typer.Option(25, help="timed launches; the median is reported"),
+                     repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
                      check: bool = typer.Option(True, help="error against the float64 reference"),
                      placements: str = typer.Option("global,texture,const-global,ray-shared,ray-indexed,paper",
                                                     help="placements (rtlab.benches.memory.PLACEMENTS)"),
@@ -531,8 +551,8 @@ def bench_memory_cmd(scenes: str = typer.Option("bunny,dragon", help="comma-sepa
 def bench_launch_cmd(scene: str = typer.Option("bunny", help="preset"),
                      backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
                      device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
-                     size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
-                     repeats: int = typer.Option(10, help="timed launches; the median is reported"),
+                     size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
+                     repeats: int = typer.Option(10, min=1, help="timed launches; the median is reported"),
                      check: bool = typer.Option(True, help="error of the default launch against the float64 reference"),
                      blocks: Optional[str] = typer.Option(None, help="block shapes XxY (default: Fig. 4's set)"),
                      orders: str = typer.Option("rows,morton", help="ray orders within a block"),
@@ -547,7 +567,7 @@ def bench_launch_cmd(scene: str = typer.Option("bunny", help="preset"),
     from .benches.launch import (FIG4_BLOCKS, block_sweep, launch_markdown, occupancy_sweep, plot_fig4, plot_fig5,
                                  register_sweep)
     shapes = _blocks(blocks) if blocks else list(FIG4_BLOCKS)
-    cap_list = [int(c) for c in caps.split(",") if c]
+    cap_list = _int_list(caps, "--caps")
     figs = {f.strip() for f in figures.split(",")}
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     sc = _load_scene(scene, size)
@@ -580,13 +600,13 @@ def bench_launch_cmd(scene: str = typer.Option("bunny", help="preset"),
 def bench_paper_cmd(backend: Optional[str] = typer.Option(None, help="opencl, cuda or auto ($RTLAB_BACKEND)"),
                     device: Optional[str] = typer.Option(None, help="device name substring or index ($RTLAB_DEVICE)"),
                     out: Path = typer.Option(Path("paper-results"), help="folder for markdown, CSV and PNG plots"),
-                    size: int = typer.Option(1024, help="image width = height (paper: 1024)"),
+                    size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                     scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
                     sections: str = typer.Option("table2,table3,table4,table5,memory,fig4,fig5",
                                                  help="sections to run, in this order"),
-                    repeats: int = typer.Option(10, help="timed launches per variant; the median is reported"),
+                    repeats: int = typer.Option(10, min=1, help="timed launches per variant; the median is reported"),
                     check: bool = typer.Option(True, help="error against the float64 reference"),
-                    budget_s: Optional[float] = typer.Option(None, help="start no section after this many seconds"),
+                    budget_s: Optional[float] = typer.Option(None, min=0, help="start no section after this many seconds"),
                     force: bool = typer.Option(False, help="rerun sections finished by an earlier run")):
     """The paper's evaluation on the current device: Tables 2-5, Figs. 4-5 and §3.1.1's memory placement,
     as markdown + CSV + PNG plots in OUT/<backend>-<device>/ (sections finished before are kept)."""
@@ -604,22 +624,48 @@ def bench_paper_cmd(backend: Optional[str] = typer.Option(None, help="opencl, cu
     console.print(f"wrote {d / 'paper.md'}, {d / 'paper.csv'} and plots in {d}")
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _usage_error_line(e: typer.TyperException) -> str:
+    """A typer usage error (unknown option, bad value, missing argument) as one line naming the
+    command, instead of typer's boxed usage panel."""
+    ctx = getattr(e, "ctx", None)
+    command = ctx.command_path if ctx is not None else "rtlab"
+    return f"{command}: {_one_line(e.format_message())} (see {command} --help)"
+
+
 def main(argv: Optional[list[str]] = None) -> int:
+    """Run the command line; returns the exit status. Errors the user can act on (usage errors,
+    RtlabError, files that cannot be read or written) are one line on stderr and a non-zero
+    status, never a traceback; anything else is a bug, reported in one line too unless
+    RTLAB_TRACEBACK=1 asks for the traceback."""
     try:
-        app(args=argv, standalone_mode=False)
+        status = app(args=argv, prog_name="rtlab", standalone_mode=False)
     except RtlabError as e:
         err_console.print(f"[bold red]rtlab:[/] {escape(str(e))}", highlight=False)
         return 2
     except (typer.Abort, KeyboardInterrupt):
         err_console.print("rtlab: interrupted")
         return 130
-    except Exception as e:  # click usage errors
-        import click
-        if isinstance(e, click.ClickException):
-            e.show()
-            return e.exit_code
-        raise
-    return 0
+    except typer.Exit as e:
+        return e.exit_code
+    except typer.TyperException as e:    # typer's usage errors (its own click since typer 0.2x)
+        if e.format_message().strip():   # (empty after `rtlab` alone: the help is the message)
+            print(_usage_error_line(e), file=sys.stderr)
+        return getattr(e, "exit_code", 2) or 2
+    except OSError as e:                 # a file or folder that cannot be read or written
+        where = f" {e.filename}" if e.filename else ""
+        err_console.print(f"[bold red]rtlab:[/]{escape(where)}: {escape(e.strerror or str(e))}", highlight=False)
+        return 1
+    except Exception as e:
+        if os.environ.get("RTLAB_TRACEBACK", "").strip() not in ("", "0"):
+            raise
+        err_console.print(f"[bold red]rtlab: unexpected error[/] ({escape(type(e).__name__)}: "
+                          f"{escape(_one_line(e))}); this is a bug: RTLAB_TRACEBACK=1 shows where", highlight=False)
+        return 1
+    return status if isinstance(status, int) else 0
 
 
 if __name__ == "__main__":

@@ -1,4 +1,12 @@
-"""Where rtlab finds its kernels, scene files and caches.
+"""Where rtlab finds its kernels, lab steps, scene files and caches.
+
+Kernels and lab steps: ``kernels/`` and ``labs/`` are the course's source of truth at the top of a
+checkout (or of a student release, which has the same layout); a wheel ships them inside the
+package as ``rtlab/_data/kernels`` and ``rtlab/_data/labs`` (pyproject.toml maps the folders
+there, as PyOpenCL ships its device headers), so a plain ``pip install .`` works from any
+directory. ``DATA_ROOT`` is the folder holding both, so a path named as in the checkout
+(``kernels/shared/rt_types.h`` in a grading.toml) is ``DATA_ROOT / path`` in either. A checkout
+wins when the package runs from one (editable install, or ``python -m rtlab`` in it).
 
 Scene files: ``$RTLAB_SCENES``, then ``../shared/scenes`` beside the checkout, then a per-user cache
 (``platformdirs.user_cache_dir('rtlab')/scenes``). Acceleration structures are cached under
@@ -7,17 +15,31 @@ Scene files: ``$RTLAB_SCENES``, then ``../shared/scenes`` beside the checkout, t
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import platformdirs
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+# The folder above the package: a checkout's root, or site-packages for an installed wheel
 PROJECT_DIR = PACKAGE_DIR.parent
+
+
+def _is_source_tree(root: Path) -> bool:
+    """Whether root holds the course's kernels/ and labs/ (checked by a file of each, so a foreign
+    ``kernels`` folder in site-packages is never taken for rtlab's)."""
+    return (root / "kernels" / "shared" / "rt_port.h").is_file() and (root / "labs").is_dir()
+
+
+IN_CHECKOUT = _is_source_tree(PROJECT_DIR)
+DATA_ROOT = PROJECT_DIR if IN_CHECKOUT else PACKAGE_DIR / "_data"
+# The reference kernels, always these (the grader compiles the reference from here)
+REFERENCE_KERNEL_DIR = DATA_ROOT / "kernels"
 # $RTLAB_KERNEL_DIR swaps in another kernel tree: the grader compiles a submission from a copy of
 # kernels/ with the student's files laid over it.
-KERNEL_DIR = Path(os.environ.get("RTLAB_KERNEL_DIR") or PROJECT_DIR / "kernels")
+KERNEL_DIR = Path(os.environ.get("RTLAB_KERNEL_DIR") or REFERENCE_KERNEL_DIR)
 SHARED_KERNEL_DIR = KERNEL_DIR / "shared"
-LABS_DIR = PROJECT_DIR / "labs"
+LABS_DIR = DATA_ROOT / "labs"
 
 
 def user_cache_dir() -> Path:
@@ -30,7 +52,8 @@ def scene_search_dirs() -> list[Path]:
     env = os.environ.get("RTLAB_SCENES")
     if env:
         dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    dirs.append(PROJECT_DIR.parent / "shared" / "scenes")
+    if IN_CHECKOUT:
+        dirs.append(PROJECT_DIR.parent / "shared" / "scenes")
     dirs.append(user_cache_dir() / "scenes")
     return dirs
 
@@ -42,6 +65,27 @@ def find_scene_file(relpath: str) -> Path | None:
         if p.is_file():
             return p
     return None
+
+
+def _writable_dir(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(path, os.W_OK | os.X_OK)
+
+
+def ensure_user_cache() -> None:
+    """Caches live in the per-user cache directory ($XDG_CACHE_HOME or ~/.cache): rtlab's trees,
+    numba's compiled builder (numba's choice when the installed package's ``__pycache__`` is
+    read-only), pyopencl's binaries. Where that cannot be written (no home, or a read-only one:
+    some containers and service accounts), numba refuses to define cached functions and pyopencl
+    fails; point $XDG_CACHE_HOME at a per-user folder in the temporary directory instead, so they
+    all still work and cache. Runs before numba or pyopencl is imported (rtlab/__init__.py)."""
+    if _writable_dir(Path(platformdirs.user_cache_dir())):
+        return
+    uid = getattr(os, "getuid", lambda: "user")()
+    os.environ["XDG_CACHE_HOME"] = str(Path(tempfile.gettempdir()) / f"rtlab-cache-{uid}")
 
 
 def accel_cache_dir() -> Path:

@@ -19,7 +19,7 @@ from .. import paths
 from .kdtree import KdBuildParams, KdTree, build_kdtree
 
 # Bump when the builder's output for the same inputs changes (split rules, node layout, ...)
-FORMAT_VERSION = "kdtree-v1"
+FORMAT_VERSION = "kdtree-v2"
 
 
 def cache_key(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams) -> str:

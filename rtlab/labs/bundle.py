@@ -14,7 +14,7 @@ import stat
 import zipfile
 from pathlib import Path
 
-from ..paths import PROJECT_DIR, find_scene_file
+from ..paths import IN_CHECKOUT, PROJECT_DIR, find_scene_file
 from .config import load_config
 from .regions import LabError
 
@@ -89,6 +89,9 @@ def scene_files(step: str) -> list[tuple[str, Path]]:
 def write_bundle(step: str, out: Path | None = None) -> Path:
     """Write the autograder folder and its zip; returns the zip's path."""
     load_config(step)
+    if not IN_CHECKOUT:
+        raise LabError("rtlab grade --bundle copies rtlab's sources: run it from a checkout (or a student "
+                       "release) of rtlab, not an installed wheel")
     out = Path(out or f"autograder-{step}")
     if out.exists():
         shutil.rmtree(out)

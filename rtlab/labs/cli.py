@@ -56,7 +56,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
                   device: Optional[str] = typer.Option(None, help="device name substring or index"),
                   out: Optional[Path] = typer.Option(None, help="results file (bundle: the folder to write)"),
                   tests: Optional[str] = typer.Option(None, help="comma-separated test names (default: all)"),
-                  jobs: Optional[int] = typer.Option(None, help="tests run at once (default: CPU cores, at most 4)"),
+                  jobs: Optional[int] = typer.Option(None, min=1, help="tests run at once (default: CPU cores, at most 4)"),
                   keep: bool = typer.Option(False, help="keep the work folder (trees, logs) for debugging")):
     """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
     from ..errors import RtlabError
@@ -105,9 +105,9 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
 
 
 def inspect_command(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
-                    depth: int = typer.Option(6, help="kd-tree cells down to this depth"),
+                    depth: int = typer.Option(6, min=0, help="kd-tree cells down to this depth"),
                     pixel: Optional[Tuple[int, int]] = typer.Option(None, help="X Y: show this pixel's ray tree"),
-                    size: int = typer.Option(128, help="image size the pixel refers to (width = height)"),
+                    size: int = typer.Option(128, min=1, help="image size the pixel refers to (width = height)"),
                     screenshot: Optional[Path] = typer.Option(None, help="write a PNG instead of opening a window"),
                     backend: Optional[str] = typer.Option(None, help="backend that traces the pixel's rays"),
                     window: str = typer.Option("1024x768", help="window / screenshot size WxH")):

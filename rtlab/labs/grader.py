@@ -33,11 +33,11 @@ from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..paths import PROJECT_DIR
+from ..paths import REFERENCE_KERNEL_DIR
 from .config import LabConfig, TestSpec, load_config
 from .regions import LabError, stubbed_functions, strip_regions
 
-REFERENCE_KERNELS = PROJECT_DIR / "kernels"
+REFERENCE_KERNELS = REFERENCE_KERNEL_DIR
 POLL_S = 0.05
 
 

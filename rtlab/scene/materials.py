@@ -182,6 +182,8 @@ def glass_scene(size: int = 64, lights: int = 1, cube: bool = True, chrome: bool
     ``lights`` 0 gives a scene without lights; ``cube``/``chrome`` False leave those out."""
     import trimesh
 
+    from rtlab.scene.loader import smooth_vertex_normals
+
     materials = [Material("light", diffuse=(0.85, 0.85, 0.8), specular=(0.1, 0.1, 0.1), shininess=16.0),
                  Material("dark", diffuse=(0.2, 0.25, 0.35)),
                  Material(**vars(GLASS)),
@@ -201,8 +203,8 @@ def glass_scene(size: int = 64, lights: int = 1, cube: bool = True, chrome: bool
     parts.append((v, f.reshape(-1, 3), np.tile([0.0, 1.0, 0.0], (len(v), 1)), np.repeat(cell, 2)))
 
     def smooth(mesh, material):
-        return (np.asarray(mesh.vertices), np.asarray(mesh.faces), np.asarray(mesh.vertex_normals),
-                np.full(len(mesh.faces), material))
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        return vertices, faces, smooth_vertex_normals(vertices, faces), np.full(len(faces), material)
 
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     sphere.apply_translation([0.0, 1.05, 0.4])

@@ -59,8 +59,12 @@ def _ground() -> _Part:
 
 
 def _smooth_part(mesh: trimesh.Trimesh, material: str) -> _Part:
-    return _Part(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
-                 np.asarray(mesh.vertex_normals, np.float64),
+    # rtlab's own area-weighted normals: trimesh's vertex_normals wants scipy, and without it
+    # prints a traceback before falling back (the loader imports this module: import here)
+    from rtlab.scene.loader import smooth_vertex_normals
+
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    return _Part(vertices, faces, smooth_vertex_normals(vertices, faces).astype(np.float64),
                  np.full(len(mesh.faces), MATERIAL_ID[material], np.int32))
 
 
