@@ -114,7 +114,10 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
            compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels"),
            schedule: str = typer.Option("tree", help="with --bounces: tree (the paper's depth-first kernel "
-                                        "tree) or wavefront (one launch per level)")):
+                                        "tree) or wavefront (one launch per level)"),
+           kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (a copy of "
+                                                  "kernels/ with your work; default $RTLAB_KERNEL_DIR or the "
+                                                  "installation's)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
     from .kernels import Variant
@@ -124,6 +127,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     except ValueError:
         raise RtlabError(f"--block must look like 32x4, got '{block}'") from None
     variant = Variant(traversal=traversal, intersection=isect, block=(bx, by))
+    _use_kernels(kernels, variant, whitted=shadows is not None or bounces is not None)
     from .backends import get_backend
     be = get_backend(backend, device)
     sc = _load_scene(scene, size)
@@ -152,6 +156,23 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: the paper's tables on the current device.")
 app.add_typer(bench_app, name="bench")
+
+
+def _use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
+    """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
+    still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
+    from .kernels import use_kernel_dir
+    from .labs.trees import kernel_tree_summary
+    if kernels is not None:
+        use_kernel_dir(kernels)
+    console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)
+
+
+@bench_app.callback()
+def bench_options(kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (default "
+                                                         "$RTLAB_KERNEL_DIR or the installation's)")):
+    """Benchmarks: the paper's tables on the current device (rtlab bench --kernels DIR SECTION ...)."""
+    _use_kernels(kernels)
 
 
 def _bench_scenes(scenes: str, views: str, size: int):
@@ -563,7 +584,7 @@ def bench_paper_cmd(backend: Optional[str] = typer.Option(None, help="opencl, cu
 
 def main(argv: Optional[list[str]] = None) -> int:
     try:
-        app(args=argv, standalone_mode=False)
+        rc = app(args=argv, standalone_mode=False)
     except RtlabError as e:
         err_console.print(f"[bold red]rtlab:[/] {escape(str(e))}", highlight=False)
         return 2
@@ -576,7 +597,7 @@ def main(argv: Optional[list[str]] = None) -> int:
             e.show()
             return e.exit_code
         raise
-    return 0
+    return rc if isinstance(rc, int) else 0
 
 
 if __name__ == "__main__":

@@ -74,7 +74,10 @@ def find_regions(text: str, where: str = "<source>") -> list[Region]:
         sig = sigs[-1]
         ret = " ".join(sig.group("ret").split())
         body_start = b.end() + 1
-        first = text[body_start:text.find("\n", body_start)]
+        first_end = text.find("\n", body_start)
+        first = text[body_start:first_end]
+        if TODO_MARK in first:       # an already stubbed region: its STUB line follows the TODO line
+            first = text[first_end + 1:text.find("\n", first_end + 1)]
         stub_match = STUB_RE.match(first)
         regions.append(Region(function=sig.group("name"), return_type=ret, begin=b.start(), end=e.end(),
                               body_start=body_start, body_end=e.start(), indent=b.group(1), line=line,

@@ -233,3 +233,39 @@ def has_reference(step: str | None = None) -> bool:
 
 def is_stub_body(body: str) -> bool:
     return TODO_MARK in body
+
+
+def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_primary",)) -> str:
+    """One or two lines saying which kernel tree this process compiles (and where that choice came
+    from) and which functions in it are still the template's stubs; with ``variant`` (and the lab
+    ``step`` whose kernel runs), a warning when the kernels it launches call one of them."""
+    import os
+    from .. import kernels as kmod
+    from ..paths import PROJECT_DIR
+    root = Path(kmod.KERNEL_DIR)
+    env = os.environ.get("RTLAB_KERNEL_DIR")
+    if env and Path(env).resolve() == root.resolve():
+        origin = "from $RTLAB_KERNEL_DIR"
+    elif root.resolve() == (PROJECT_DIR / "kernels").resolve():
+        origin = "this installation's kernels/"
+    else:
+        origin = "from --kernels"
+    stubs = tree_stubs(root)
+    names = {f: rel for rel, fs in stubs.items() for f in fs}
+    if not names:
+        return f"kernel tree: {root} ({origin}): no template stubs, every lab function is written"
+    line = (f"kernel tree: {root} ({origin}): {len(names)} functions still hold the template's stub "
+            f"({', '.join(sorted(names)[:8])}{', ...' if len(names) > 8 else ''})")
+    if variant is not None:
+        from ..kernels import SceneFeatures, build_defines, kernel_source, primary_step
+        from .cpp import Preprocessor
+        try:
+            source = kernel_source(step or primary_step(variant), "opencl")
+            pp = Preprocessor([root / "shared"], build_defines(variant, SceneFeatures())).run(source)
+            used = sorted(f for f in pp.reachable(list(kernels)) if f in names)
+        except Exception:   # a summary, never a reason to stop a render
+            used = []
+        if used:
+            line += (f"\nwarning: this {variant.label()} render calls {', '.join(used)}, still a stub: its "
+                     f"image and --check show the stub, not a solution")
+    return line
