@@ -84,10 +84,10 @@ if [ ! -s "$ROOT/results/results.json" ]; then
 fi
 """
 
-# Measured on the course's lab machine (2 CPU cores, PoCL 3.1, caches warm as after setup.sh),
-# grading the reference with `python benchmarks/bench_grading.py`: seconds for one submission.
-MEASURED_SECONDS = {"00_primary": 17, "01_memory": 20, "02_intersect": 30, "03_traversal": 35,
-                    "04_shadows": 25, "05_kernel_tree": 30}
+# Measured on the course's lab machine (2 CPU cores shared with other work, load ~4, PoCL 3.1,
+# caches warm as after setup.sh): `rtlab grade STEP .` of the reference, seconds for one submission.
+MEASURED_SECONDS = {"00_primary": 19, "01_memory": 21, "02_intersect": 22, "03_traversal": 25,
+                    "04_shadows": 14, "05_kernel_tree": 22}
 
 README = """# Gradescope autograder for rtlab lab {step}
 
@@ -96,7 +96,7 @@ Written by `rtlab grade --bundle {step}` from the course's repository (the refer
 
 What it needs (set these in the assignment's autograder settings):
 - **Memory:** each test runs in its own process capped at {memory} MB (grading.toml
-  `memory_limit_mb`; the reference needs about 400 MB), and up to {jobs_hint} of them run at once beside
+  `memory_limit_mb`; the reference's test processes peak at 400-560 MB), and up to {jobs_hint} of them run at once beside
   the grading process (about 1 GB: scenes, fixtures). With one CPU, 3 GB is enough; with N CPUs,
   N x {memory} MB + 1 GB. The grader starts no more tests at once than the memory it sees allows.
 - **Time:** one grading takes about {seconds} s on 2 CPU cores (more on a loaded machine; the

@@ -247,16 +247,28 @@ def _signal_text(sig: int) -> str:
             "SIGFPE": "arithmetic exception (integer division by zero?)",
             "SIGABRT": "aborted (the OpenCL runtime gave up, often after an out-of-bounds write)",
             "SIGILL": "illegal instruction",
-            "SIGKILL": "killed (out of memory?)"}.get(name, "")
+            "SIGKILL": "killed (out of memory?)",
+            "SIGXFSZ": "wrote more than a test process may (a kernel printing without end?)"}.get(name, "")
     return f"{name} ({what})" if what else name
 
 
-def _log_tail(path: Path, lines: int = 8) -> str:
+def _log_tail(path: Path, lines: int = 8, max_bytes: int = 1 << 16) -> str:
     try:
-        text = path.read_text(errors="replace").strip().splitlines()
+        with open(path, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - max_bytes))
+            text = f.read().decode("utf-8", "replace").strip().splitlines()
     except OSError:
         return ""
     return "\n".join(text[-lines:])
+
+
+MAX_OUTPUT = 6000     # characters of a test's message (a compiler can print thousands of errors)
+
+
+def _shorten(text: str) -> str:
+    if len(text) <= MAX_OUTPUT:
+        return text
+    return text[:MAX_OUTPUT - 200] + f"\n... ({len(text) - MAX_OUTPUT + 200:,} more characters cut)"
 
 
 MEMORY_SIGNS = ("MemoryError", "bad_alloc", "out of memory", "Cannot allocate memory", "Allocation failed")
@@ -462,6 +474,7 @@ class GradingRun:
                 f"  {x}" for rel in (files or self.tree.refused) for x in self.tree.refused[rel])
         elif r.status == "compile_error":
             output = compile_message(output)
+        output = _shorten(output)
         if status != "passed" and status not in ("refused", "skipped", "pending"):
             note = self.stub_note(r.programs)
             if note:

@@ -32,10 +32,14 @@ def _write(path: Path, obj) -> None:
     tmp.replace(path)
 
 
-def limit_memory(megabytes: int) -> None:
+FILE_LIMIT = 256 * 2 ** 20     # bytes a test process may write to one file (its log: a kernel printing without end)
+
+
+def limit_resources(megabytes: int) -> None:
     limit = int(megabytes) * 2 ** 20
     resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_LIMIT, FILE_LIMIT))
 
 
 class Recorder:
@@ -87,7 +91,7 @@ def main(test_dir: str) -> int:
     d = Path(test_dir)
     job = json.loads((d / "spec.json").read_text())
     if job.get("memory_limit_mb"):
-        limit_memory(job["memory_limit_mb"])
+        limit_resources(job["memory_limit_mb"])
     from rtlab.backends import get_backend
     from rtlab.errors import KernelBuildError
     from rtlab.labs import checks
