@@ -337,6 +337,7 @@ RULE_CASES = [
     ('#define intersect_leaf my_leaf\n', "intersect_leaf is used by"),
     ('#define get_global_id(i) 0\n', "get_global_id is used by"),
     ('#define CAT(a, b) a ## b\n', "token pasting"),
+    ('void f(void) { void *p = __builtin_return_address(0); }\n', "__builtin_return_address"),
     ('#define CAT(a, b) a %:%: b\n', "token pasting"),
     ('const char *s = R"x(\n#include "/x/rt_port.h"\n)x";\n', "raw string"),
     ('int n = 1\'000;\n', "digit separator"),
@@ -668,29 +669,47 @@ def test_release_holds_no_solution(release):
 
 
 def test_lab00_from_the_release_reaches_full_marks(release, tmp_path):
-    """A student with the release writes lab 00 (here: the reference's regions pasted into the
-    release's files) and grades it with the release's own rtlab: full marks of its visible tests.
-    The release cannot make a Gradescope bundle (it has no reference)."""
-    work = tmp_path / "work"
-    shutil.copytree(release, work)
+    """A student with the release writes lab 00 in a copy of its kernels (here: the reference's
+    regions pasted in) and grades it with the release's own rtlab: full marks of its visible tests.
+    Lab 03 then runs on the student's own lab 00 (the release has no reference for it). The release
+    cannot make a Gradescope bundle; render says which tree it compiles and which stubs it runs."""
+    mine = tmp_path / "mykernels"
+    shutil.copytree(release / "kernels", mine)
     for lf in CONFIG.files:
-        f = work / lf.path
+        f = mine / Path(lf.path).relative_to("kernels")
         f.write_text(splice_regions(f.read_text(), (PROJECT_DIR / lf.path).read_text()))
-    env = dict(os.environ, PYTHONPATH=str(work))
+    env = dict(os.environ, PYTHONPATH=str(release))
     env.pop("RTLAB_KERNEL_DIR", None)
-    out = tmp_path / "results.json"
-    r = subprocess.run([sys.executable, "-m", "rtlab", "grade", STEP, str(work), "--out", str(out),
-                        "--require-full-marks"], env=env, capture_output=True, text=True, cwd=tmp_path)
+
+    def rtlab(*args, **extra_env):
+        return subprocess.run([sys.executable, "-m", "rtlab", *map(str, args)], env={**env, **extra_env},
+                              capture_output=True, text=True, cwd=tmp_path)
+
+    r = rtlab("grade", STEP, mine, "--out", tmp_path / "r00.json", "--require-full-marks")
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    data = json.loads(out.read_text())
+    data = json.loads((tmp_path / "r00.json").read_text())
     assert data["score"] == data["max_score"] == load_config(release / "labs" / STEP / "grading.toml").max_score
-    r = subprocess.run([sys.executable, "-m", "rtlab", "grade", "--bundle", STEP, "--out", str(tmp_path / "ag")],
-                       env=env, capture_output=True, text=True, cwd=tmp_path)
+    r = rtlab("grade", "--bundle", STEP, "--out", tmp_path / "ag")
     assert r.returncode == 2 and "student release" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([sys.executable, "-m", "rtlab", "render", "default", "--size", "16", "--out",
-                        str(tmp_path / "r.png"), "--traversal", "restart"], env=env, capture_output=True, text=True,
-                       cwd=tmp_path)
-    assert r.returncode == 0 and "traverse_kd_restart, still a stub" in " ".join(r.stdout.split()), r.stdout
+    r = rtlab("render", "default", "--size", 16, "--out", tmp_path / "r.png", "--traversal", "restart",
+              RTLAB_KERNEL_DIR=str(mine))
+    out = " ".join(r.stdout.split())
+    assert r.returncode == 0 and f"kernel tree: {mine} (from $RTLAB_KERNEL_DIR)" in out, out
+    assert "calls traverse_kd_restart, still a stub" in out and "camera_ray," not in out, out
+    # The course's rtlab rendering the student's tree (--kernels)
+    r = rtlab("render", "default", "--size", 16, "--out", tmp_path / "r.png", "--traversal", "ropes",
+              "--kernels", mine, PYTHONPATH=str(PROJECT_DIR))
+    out = " ".join(r.stdout.split())
+    assert r.returncode == 0 and f"kernel tree: {mine} (from --kernels)" in out
+    assert "calls traverse_kd_ropes, still a stub" in out, out
+    # Lab 03 in the same tree runs on the student's camera (lab 00)
+    f = mine / "shared/rt_packet.h"
+    f.write_text(splice_regions(f.read_text(), (PROJECT_DIR / "kernels/shared/rt_packet.h").read_text()))
+    rtlab("grade", "03_traversal", mine, "--tests", "render_packet", "--out", tmp_path / "r03.json", "--format", "json")
+    data = json.loads((tmp_path / "r03.json").read_text())
+    assert data["score"] == 10, data
+    assert any(n.startswith("camera_ray, traverse_kd_stack (kernels/shared") or "camera_ray (kernels/shared/rt_types.h)"
+               in n for n in data["notes"]), data["notes"]
 
 
 def _bundle(tmp_path) -> Path:

@@ -11,7 +11,9 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
 * ``#define``/``#undef`` of names of the file's own (new names, or what its template defines): a name
   the rest of the kernel tree uses (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
-* no ``asm`` (on PoCL a kernel is CPU code: inline assembly makes system calls), no ``_Pragma``,
+* no ``asm`` (on PoCL a kernel is CPU code in the grader's process: inline assembly makes system
+  calls; PoCL itself refuses calls to functions outside its kernel library), no builtins that reach
+  the stack behind a function's back (``__builtin_return_address``...), no ``_Pragma``,
   ``__has_include``, token pasting ``##`` (it builds names the rule could not see), and none of the
   spellings C and C++ read differently (raw strings, digit separators, trigraphs, unclosed quotes).
 
@@ -35,6 +37,12 @@ FORBIDDEN_IDENTIFIERS = {
     "asm": "inline assembly", "__asm": "inline assembly", "__asm__": "inline assembly",
     "_Pragma": "the _Pragma operator", "__pragma": "the __pragma operator",
     "__has_include": "__has_include", "__has_include_next": "__has_include_next", "__has_embed": "__has_embed",
+    # the stack and control flow behind a function's back (a CPU kernel could reach the grader's code)
+    **{name: f"the builtin {name}" for name in (
+        "__builtin_frame_address", "__builtin_return_address", "__builtin_extract_return_addr",
+        "__builtin_setjmp", "__builtin_longjmp", "__builtin_eh_return", "__builtin_unwind_init",
+        "__builtin_dwarf_cfa", "__builtin_stack_save", "__builtin_stack_restore", "__builtin_alloca",
+        "__builtin_alloca_with_align", "__builtin_call_with_static_chain", "__builtin___clear_cache")},
 }
 
 

@@ -194,11 +194,14 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path) -> Studen
             continue
         theirs = data.decode("latin-1")
         try:
-            spliced = splice_regions(text, theirs, rel)
+            written = [f for f in earlier if f not in stubbed_functions(theirs)
+                       and f in {r.function for r in find_regions(theirs, rel)}]
         except LabError:
             continue
-        path.write_bytes(spliced.encode("latin-1"))
-        tree.notes.append(f"{', '.join(earlier)} ({rel}): this installation has no reference for earlier steps; "
+        if not written:
+            continue
+        path.write_bytes(splice_regions(text, theirs, rel, functions=written).encode("latin-1"))
+        tree.notes.append(f"{', '.join(written)} ({rel}): this installation has no reference for earlier steps; "
                           f"graded with the submission's own")
 
     for lf in config.files:
