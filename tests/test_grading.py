@@ -399,16 +399,16 @@ def _without_region_body(text: str, function: str, step: str, rel: str) -> str:
 def test_lab03_cheats_score_nothing(tmp_path):
     """Lab 03 with each header a different way to the reference (the old grader gave 100 / 100 to the
     first alone): a relative include, a #define of the traversal name to lab 00's stack traversal,
-    a symlink, a computed include behind a line splice, an absolute include. Every test that compiles
-    one of them scores 0 and names the file and line; the total is at most the compile points."""
+    a symlink, a computed include behind a line splice; and an empty file. Every test that compiles
+    one of them scores 0 and names the file and line; the total is at most the compile points. (An
+    absolute include: test_bundle_in_a_simulated_gradescope_layout.)"""
     step = "03_traversal"
     sub = tmp_path / "sub"
     materialize("cheats", sub, step)           # rt_kd_restart.h, rt_kd_shortstack.h, rt_packet.h stored
     ropes = sub / "kernels/shared/rt_kd_ropes.h"
     ropes.unlink()
     ropes.symlink_to(PROJECT_DIR / "kernels/shared/rt_kd_ropes.h")
-    bvh = sub / "kernels/shared/rt_bvh.h"
-    bvh.write_text(f'#include "{PROJECT_DIR}/kernels/shared/rt_bvh.h"\n')
+    (sub / "kernels/shared/rt_bvh.h").write_text("")
     tests = ["compile", "trace_restart", "trace_shortstack", "trace_ropes", "trace_packet", "trace_bvh"]
     report = grade(step, sub, tests=tests)
     config = load_config(step)
@@ -417,7 +417,7 @@ def test_lab03_cheats_score_nothing(tmp_path):
            "trace_shortstack": r"rt_kd_shortstack\.h:\d+: #define traverse_kd_shortstack: .* is used by",
            "trace_ropes": r"rt_kd_ropes\.h: is a symbolic link",
            "trace_packet": r"rt_packet\.h:\d+: #include REF: a computed include",
-           "trace_bvh": r"rt_bvh\.h:1: #include \".*\" names a path"}
+           "trace_bvh": r"rt_bvh\.h: file is empty"}
     for t in report.tests:
         assert t.score == 0, (t.name, t.output)
         if t.name in why:
@@ -441,6 +441,21 @@ def test_later_step_function_is_a_stub_in_lab00(tmp_path):
     for name in ("trace_random_rays", "render_default"):
         t = report.test(name)
         assert t.score == 0 and "got a miss" in t.output, t.output
+
+
+def test_compile_test_stands_for_every_kernel_the_tests_build(tmp_path):
+    """Lab 03's compile test builds the packet kernels; a syntax error in the ropes header shows in
+    the ropes test, and the compile test fails with it (the old one passed)."""
+    step = "03_traversal"
+    sub = reference_files(step, tmp_path / "sub")
+    ropes = sub / "kernels/shared/rt_kd_ropes.h"
+    ropes.write_text(ropes.read_text().replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n    int oops = ;", 1))
+    report = grade(step, sub, tests=["compile", "trace_restart", "trace_ropes"])
+    assert report.test("trace_restart").passed
+    assert report.test("trace_ropes").status == "compile_error"
+    c = report.test("compile")
+    assert (c.status, c.score) == ("compile_error", 0) and "the kernel of test trace_ropes does not build" in c.output
+    assert re.search(r"kernels/shared/rt_kd_ropes\.h:\d+:\d+: error", c.output), c.output
 
 
 def test_latin1_and_utf16_files(tmp_path):

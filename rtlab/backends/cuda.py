@@ -146,10 +146,10 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        key = (str(path), tuple(sorted(defines.items())), tuple(options))
+        from ..kernels import include_dirs
+        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
-        from ..kernels import include_dirs
         text = read_source(path)
         source = f'#line 1 "{path}"\n{text}'
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)

@@ -166,11 +166,12 @@ class OpenCLBackend(Backend):
         return SM90
 
     def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> OpenCLProgram:
+        from ..kernels import include_dirs
         cl = _cl()
-        key = (str(path), tuple(sorted(defines.items())), tuple(options))
+        # the include folders are part of the key: the harness kernels compile against any tree
+        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
-        from ..kernels import include_dirs
         text = read_source(path)
         # '#line' makes compiler messages name the real file instead of '<source>'
         source = f'#line 1 "{path}"\n{text}'

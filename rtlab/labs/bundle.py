@@ -60,8 +60,12 @@ fi
 export RTLAB_SCENES="$SOURCE/scenes" RTLAB_CACHE="$ROOT/cache"
 mkdir -p "$ROOT/cache"
 "$VENV/bin/rtlab" info
-"$VENV/bin/rtlab" grade {step} "$SOURCE" --backend opencl --format table --secret-file "$SOURCE/grading-secret" \\
-    --out "$ROOT/cache/self-check.json" --require-full-marks
+# One retry: the reference's speed against itself can pass 1.25x on a builder loaded by other work.
+self_check() {{
+  "$VENV/bin/rtlab" grade {step} "$SOURCE" --backend opencl --format table --secret-file "$SOURCE/grading-secret" \\
+      --out "$ROOT/cache/self-check.json" --require-full-marks
+}}
+self_check || self_check
 """
 
 RUN_AUTOGRADER = """#!/usr/bin/env bash
