@@ -273,6 +273,22 @@ def test_missing_file_is_graded_as_template(tmp_path):
     assert tree.stubs == {"kernels/shared/rt_kdtree.h": ["traverse_kd_stack"]}
 
 
+def test_earlier_steps_in_a_submitted_file_are_the_reference(tmp_path):
+    """A lab 05 rt_whitted.h as a student of the release hands it in (lab 04's functions are theirs,
+    here still stubs): lab 05 is graded on spawn_* alone, with the reference's lab 04 functions."""
+    config = load_config("05_kernel_tree")
+    rel = "kernels/shared/rt_whitted.h"
+    student = template_text(load_config("04_shadows"), rel)            # lab 04 and 05 stubbed
+    student = splice_regions(student, (PROJECT_DIR / rel).read_bytes().decode("latin-1"), rel,
+                             functions=["spawn_reflection", "spawn_refraction"])
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "rt_whitted.h").write_bytes(student.encode("latin-1"))
+    tree = build_student_tree(config, tmp_path / "sub", tmp_path / "work")
+    assert tree_stubs(tree.root).get(rel) is None
+    assert (tree.root / "shared" / "rt_whitted.h").read_bytes() == (PROJECT_DIR / rel).read_bytes()
+    assert any("light_visible, shade_local in kernels/shared/rt_whitted.h" in n for n in tree.notes), tree.notes
+
+
 def test_find_submitted_file_by_path_or_name(tmp_path):
     (tmp_path / "a" / "kernels" / "shared").mkdir(parents=True)
     (tmp_path / "a" / "kernels" / "shared" / "rt_types.h").write_text("x")

@@ -172,7 +172,7 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path) -> Studen
         elif lf.path in tree.refused:
             target.write_bytes(refused_placeholder(tree.refused[lf.path]))
         else:
-            target.write_bytes(data)
+            target.write_bytes(earlier_steps_from_reference(data, lf.path, config.step, owners, tree.notes))
 
     # A student release has no reference for earlier steps either: take the student's own (their
     # earlier labs), when the submission holds those files, else they stay stubbed.
@@ -212,6 +212,29 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path) -> Studen
         if stubs:
             tree.stubs[lf.path] = stubs
     return tree
+
+
+def earlier_steps_from_reference(data: bytes, relpath: str, step: str, owners, notes: list[str]) -> bytes:
+    """A submitted file with the regions of earlier steps (lab 04's functions in a lab 05
+    rt_whitted.h) holding the reference's bodies, where this installation has them: a step is
+    graded on its own functions. Everything else stays as written."""
+    from .regions import splice_regions, stubbed_functions
+    text = data.decode("latin-1")
+    try:
+        earlier = [r.function for r in find_regions(text, relpath)
+                   if owners.get((relpath, r.function), UNOWNED_STEP) < step]
+    except LabError:
+        return data    # unbalanced markers: the file is compiled as written
+    if not earlier:
+        return data
+    reference = read_text(reference_kernels().parent / relpath)
+    theirs = {r.function: r.body(text) for r in find_regions(text, relpath)}
+    ours = {r.function: r.body(reference) for r in find_regions(reference, relpath)}
+    given = [f for f in earlier if f in ours and f not in stubbed_functions(reference) and ours[f] != theirs[f]]
+    if not given:
+        return data
+    notes.append(f"{', '.join(given)} in {relpath}: earlier steps' functions, graded with the reference's")
+    return splice_regions(text, reference, relpath, functions=given).encode("latin-1")
 
 
 def tree_stubs(root: Path) -> dict[str, list[str]]:
