@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import LabConfig, lab_names, load_config
-from .regions import LabError, TODO_MARK, find_regions, strip_regions
+from .regions import LabError, find_regions, strip_regions
 from .submission import Refusal, Refused, check_source, read_submitted, refused_placeholder, tree_rules
 
 KERNEL_SUBDIRS = ("shared", "cuda", "opencl")
@@ -148,7 +148,8 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path) -> Studen
     lab_paths = {lf.path for lf in config.files}
 
     def take(relpath: str) -> bytes | None:
-        """The submitted bytes of relpath after the rule; None (and a refusal) when refused."""
+        """The submitted bytes of relpath after the rule: None when not handed in, b"" (and a refusal)
+        when refused."""
         src, note = find_submitted_file(Path(submission), relpath)
         if note:
             tree.notes.append(note)
@@ -255,10 +256,6 @@ def has_reference(step: str | None = None) -> bool:
     if step is None:
         return not stubs
     return not any(f in stubs for lf in load_config(step).files for f in lf.functions)
-
-
-def is_stub_body(body: str) -> bool:
-    return TODO_MARK in body
 
 
 def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_primary",)) -> str:
