@@ -374,8 +374,9 @@ class RenderKind(Kind):
     def agree(self, state, got, want) -> tuple[bool, str]:
         """Whether a render matches the reference kernel's render of the same view (speed tests)."""
         spec, fx = state[0], state[1]
-        ok, why = hits_agree(got.hits.tri, got.hits.t, want.hits.tri, want.hits.t, spec.tolerance,
-                             _pixel_namer(fx["scene"].camera.width))
+        scene = fx["scene"]
+        ok, why = hits_agree(got.hits.tri, got.hits.t, want.hits.tri, want.hits.t, want.hits.u, want.hits.v, scene,
+                             scene.faces, scene.camera, spec.tolerance, _pixel_namer(scene.camera.width))
         if not ok:
             return ok, why
         img_ok, img_msg, _ = describe_image_error(got.image, want.image, spec.tolerance["min_psnr"],
@@ -459,7 +460,10 @@ class IntersectLoopKind(Kind):
 
     def agree(self, state, got, want) -> tuple[bool, str]:
         spec, fx = state[0], state[1]
-        return hits_agree(got.tri, got.t, want.tri, want.t, spec.tolerance, _pixel_namer(fx["scene"].camera.width))
+        scene = fx["scene"]
+        nan = np.full(len(want.tri), np.nan)     # the loop keeps no barycentrics: ties by equal t only
+        return hits_agree(got.tri, got.t, want.tri, want.t, nan, nan, scene, scene.faces[:want.n_tris],
+                          scene.camera, spec.tolerance, _pixel_namer(scene.camera.width))
 
     def run(self, state):
         return self.check(state, self.render(state))
@@ -686,22 +690,21 @@ class FreshOutputs:
         return buf
 
 
-def hits_agree(tri, t, ref_tri, ref_t, tol, where_of) -> tuple[bool, str]:
-    """Whether a kernel's hits match another kernel's on the same rays (same device): the same
-    triangle at the same t (relative ``t_rel``), or another triangle at the same t (a tie at a shared
-    edge), or both a miss; at most ``mismatch_fraction`` of the rays otherwise."""
-    tri, ref_tri = np.asarray(tri), np.asarray(ref_tri)
-    t64, rt64 = np.asarray(t, np.float64), np.asarray(ref_t, np.float64)
-    with np.errstate(invalid="ignore"):
-        close = np.abs(t64 - rt64) <= tol["t_rel"] * np.abs(rt64)
-    hit_same_t = (tri >= 0) & (ref_tri >= 0) & close
-    bad = ~(((tri < 0) & (ref_tri < 0)) | hit_same_t)
-    n = int(bad.size)
-    if int(bad.sum()) <= int(np.floor(tol["mismatch_fraction"] * n)):
-        return True, ""
-    i = int(np.flatnonzero(bad)[0])
-    return False, (f"{int(bad.sum())} of {n} {where_of(None)} differ; first at {where_of(i)}: the reference kernel "
-                   f"gives {_hit_text(ref_tri[i], ref_t[i])}, yours {_hit_text(tri[i], t[i])}")
+def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camera, tol, where_of) -> tuple[bool, str]:
+    """Whether a kernel's hits of a camera's rays match the reference kernel's on the same rays (same
+    device), by the rules of the float64 check (rtlab.reference.compare_hits) with the reference
+    kernel's answers in the float64 reference's place: the same triangle at the same t, or another one
+    the ray cannot tell from it (a shared edge, a graze)."""
+    from ..reference import compare_hits
+    from ..reference.tracer import RefHits
+    from ..tracing import camera_rays
+    ref_tri = np.asarray(ref_tri).astype(np.int64)
+    hit = ref_tri >= 0
+    ref = RefHits(np.where(hit, np.asarray(ref_t, np.float64), np.inf), np.where(hit, ref_tri, -1),
+                  np.where(hit, np.asarray(ref_u, np.float64), np.nan), np.where(hit, np.asarray(ref_v, np.float64), np.nan))
+    o, d = camera_rays(camera)
+    cmp_ = compare_hits(ref, got_tri, got_t, scene.vertices, faces, o, d)
+    return describe_hit_errors(cmp_, ref, got_tri, got_t, tol, where_of)
 
 
 class use_kernel_tree:
