@@ -5,7 +5,8 @@ list of render configurations, median of several frames.
         --configs bvh:compact,bvh:compact:noshadows,bvh:compact:regs48
 
 A configuration is ``traversal[:option...]`` with options ``compact``, ``noshadows``, ``twopass``,
-``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level).
+``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level),
+``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position).
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from rtlab.whitted import render_whitted
 
 def parse_config(text: str):
     parts = text.split(":")
-    kw, opts = {"traversal": parts[0]}, {"compact": False, "shadows": "one-pass", "schedule": "tree"}
+    kw, opts = {"traversal": parts[0]}, {"compact": False, "shadows": "one-pass", "schedule": "tree", "defines": {}}
     for p in parts[1:]:
         if p == "wavefront":
             opts["schedule"] = "wavefront"
@@ -40,6 +41,8 @@ def parse_config(text: str):
             kw["block"] = (int(w), int(h))
         elif p.startswith("isect="):
             kw["intersection"] = p[6:]
+        elif p.startswith("fma"):
+            opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
         else:
             raise SystemExit(f"unknown option {p!r} in {text!r}")
     return Variant(**kw), opts
@@ -72,7 +75,8 @@ def main():
     for text in args.configs.split(","):
         variant, opts = parse_config(text)
         r = render_whitted(scene, backend, variant, shadows=opts["shadows"], bounces=args.bounces,
-                           compact=opts["compact"], schedule=opts["schedule"], repeats=args.repeats, warmup=2)
+                           compact=opts["compact"], schedule=opts["schedule"], repeats=args.repeats, warmup=2,
+                           defines=opts["defines"])
         regs = "/".join(str(v.get("registers")) for v in r.resources.values())
         print(f"{text:40s} {r.median_ms:7.3f} ms {r.fps:8.1f} fps  rays {r.rays_launched():>10,}  "
               f"launches {len(r.launches):2d}  regs {regs}  host {r.host_ms:.2f} ms")

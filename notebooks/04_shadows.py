@@ -24,6 +24,7 @@ import os
 import matplotlib.pyplot as plt      # in Jupyter: static PNG figures (inline backend, drawn by Agg)
 
 from rtlab.backends import get_backend
+from rtlab.kernels import Variant
 from rtlab.labs.trees import kernel_tree_summary
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import glass_scene
@@ -40,7 +41,7 @@ modes = ["none", "one-pass", "two-pass"]
 results, errors = {}, {}
 refs = {True: reference_whitted(scene, bounces=0, shadows=True), False: reference_whitted(scene, bounces=0, shadows=False)}
 for mode in modes:
-    r = render_whitted(scene, backend, shadows=mode, write_hits=True, repeats=5, warmup=1)
+    r = render_whitted(scene, backend, Variant(), shadows=mode, write_hits=True, repeats=5, warmup=1)
     e = whitted_error(r.image, {"P": r.hits.tri}, refs[mode != "none"])
     results[mode], errors[mode] = r, e
     regs = {k: v.get("local_bytes") for k, v in r.resources.items()}

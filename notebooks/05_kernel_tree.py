@@ -25,6 +25,7 @@ import os
 import matplotlib.pyplot as plt      # in Jupyter: static PNG figures (inline backend, drawn by Agg)
 
 from rtlab.backends import get_backend
+from rtlab.kernels import Variant
 from rtlab.labs.trees import kernel_tree_summary
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import glass_scene
@@ -39,7 +40,7 @@ print(backend.describe(), "|", scene.name, [m.name for m in scene.materials])
 # %%
 rows = {}
 for bounces in (0, 1, 2, 3):
-    r = render_whitted(scene, backend, bounces=bounces, write_hits=True, repeats=3, warmup=1)
+    r = render_whitted(scene, backend, Variant(), bounces=bounces, write_hits=True, repeats=3, warmup=1)
     ref = reference_whitted(scene, bounces=bounces)
     tree = r.tree if r.tree is not None else {"P": r.hits.tri}
     e = whitted_error(r.image, tree, ref)

@@ -33,18 +33,20 @@ _CAMERA_HITS_KEPT = 4
 def reference_camera_hits(scene: Scene, camera: Camera):
     """float64 reference hits of the camera's primary rays (the same float32 rays the kernels trace).
     Kept for the last few (geometry, camera) pairs: a bench compares many variants against one view."""
+    from .device_scene import scene_fingerprint
     from .reference import reference_trace
     from .tracing import camera_rays
-    key = (id(scene.vertices), id(scene.faces), scene.vertices.shape, scene.faces.shape,
-           tuple(camera.eye), tuple(camera.target), tuple(camera.up), camera.fov_deg, camera.width, camera.height)
+    # keyed by content, not id(): an edited scene must not get the hits of its old geometry
+    key = (scene_fingerprint(scene), tuple(camera.eye), tuple(camera.target), tuple(camera.up), camera.fov_deg,
+           camera.width, camera.height)
     hit = _camera_hits.get(key)
-    if hit is not None and hit[0] is scene.vertices and hit[1] is scene.faces:
-        return hit[2]
+    if hit is not None:
+        return hit
     o, d = camera_rays(camera)
     result = (o, d, reference_trace(scene.vertices, scene.faces, o, d))
     if len(_camera_hits) >= _CAMERA_HITS_KEPT:
         _camera_hits.pop(next(iter(_camera_hits)))
-    _camera_hits[key] = (scene.vertices, scene.faces, result)
+    _camera_hits[key] = result
     return result
 
 

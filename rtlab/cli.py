@@ -105,7 +105,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
            repeats: int = typer.Option(5, help="timed launches (median reported)"),
            traversal: str = typer.Option("stack", help="kd-tree traversal variant"),
-           isect: str = typer.Option("moller", help="triangle intersection test"),
+           isect: str = typer.Option("watertight", help="triangle intersection test (the paper's: moller)"),
            block: str = typer.Option("32x4", help="block / work-group shape WxH"),
            shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
            bounces: Optional[int] = typer.Option(None, help="reflection/refraction bounces (kernel tree)"),
@@ -232,6 +232,49 @@ def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help
             f.write(rows_markdown(rows, f"Primary rays, {size}x{size}", cmd) + "\n")
 
 
+@bench_app.command("rays")
+def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-separated: primary, diffuse"),
+                   views: str = typer.Option("bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,"
+                                             "conference/inside", help="benchmark views (scene/view), comma-separated"),
+                   backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
+                   device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
+                   sizes: str = typer.Option("1024", help="image sides, comma-separated"),
+                   traversals: str = typer.Option("bvh,stack", help="traversals to time, comma-separated"),
+                   isect: str = typer.Option("moller"),
+                   block: str = typer.Option("8x16", help="block of the image-shaped launches (primary rays)"),
+                   repeats: int = typer.Option(22, help="timed launches; the median is reported"),
+                   render: bool = typer.Option(True, help="also time the render kernel on primary views"),
+                   md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """Rays through the trace API on the peers' benchmark views (../shared/bench): kernel time, Mrays/s,
+    the error against the float64 reference, the render kernel on the same camera, the best peer."""
+    from .backends import get_backend
+    from .benches.rays import COLUMNS, bench_rays, make_rays, rays_markdown, table_rows
+    from .kernels import Variant
+    bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
+    (bx, by), = _blocks(block)
+    variants = [Variant(traversal=t, intersection=isect, block=(bx, by)) for t in traversals.split(",") if t]
+    rows = []
+    for size in (int(s) for s in sizes.split(",") if s):
+        for view in (v for v in views.split(",") if v):
+            for k in (k for k in kind.split(",") if k):
+                with console.status(f"{view} {k} rays at {size}² and their float64 reference..."):
+                    batch = make_rays(view, k, size)
+                for be in bes:
+                    for variant in variants:
+                        with console.status(f"{view} {k} {size}² on {be.name} {variant.traversal}..."):
+                            rows.append(bench_rays(batch, be, variant, repeats=repeats, render=render))
+                        console.print("  ".join(table_rows(rows[-1:])[0]))
+    table = Table(title="rays through rtlab.trace")
+    for col in COLUMNS:
+        table.add_column(col, justify="right")
+    for cells in table_rows(rows):
+        table.add_row(*cells)
+    console.print(table)
+    if md:
+        with open(md, "a") as f:
+            f.write(rays_markdown(rows, _command("rays")) + "\n")
+
+
 @bench_app.command("intersect")
 def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separated presets"),
                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),
@@ -281,7 +324,8 @@ def bench_robustness(backends: str = typer.Option("auto", help="comma-separated:
                      device: Optional[str] = typer.Option(None, help="device name substring (OpenCL)"),
                      isects: Optional[str] = typer.Option(None, help="tests (default: every one)"),
                      traversals: Optional[str] = typer.Option(None, help="traversals (default: every one)"),
-                     families: str = typer.Option("1,2,3,4,5,6,7,8,9", help="families 1-9 of issue 4"),
+                     families: str = typer.Option("1,2,3,4,5,6,7,8,9,10,11,12",
+                                                  help="families 1-9 (issue 4) and 10-12 (issue 13)"),
                      size: str = typer.Option("bench", help="'bench' (127² stairs, 10^5 rays) or 'test' (small)"),
                      conservative: str = typer.Option("default", help="RT_CONSERVATIVE: default, 0, 1 or 0,1"),
                      detail: bool = typer.Option(False, help="one row per case instead of per family"),

@@ -193,6 +193,15 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
     return defines
 
 
+# nvcc's division and square root at NVIDIA OpenCL's default precision (OpenCL C allows 2.5 ulp for
+# x / y and 3 ulp for sqrt; NVIDIA's compiler emits div.full/rcp.approx/rsqrt.approx). nvcc's IEEE
+# defaults add a slow-path branch per division (the trace kernel's SASS was twice OpenCL's length).
+# Both GPU backends then compute the same bits, and the kernels' rounding bounds (RT_T_PAD in
+# rt_intersect.h) already allow a reciprocal that is not correctly rounded. Every CUDA compile uses
+# them: the backend's and the offline nvcc report's (rtlab.nvcc).
+CUDA_PRECISION_OPTIONS = ("--prec-div=false", "--prec-sqrt=false")
+
+
 def build_options(variant: Variant, backend) -> tuple[str, ...]:
     """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study. ``backend``
     is a Backend or a language name ("cuda" for nvcc). PoCL has no register file to cap: none there."""

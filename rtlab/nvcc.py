@@ -11,6 +11,7 @@ from pathlib import Path
 
 from .backends.base import KernelResources
 from .errors import KernelBuildError
+from .kernels import CUDA_PRECISION_OPTIONS
 from .occupancy import SM90, cuda_occupancy
 
 
@@ -30,7 +31,7 @@ def nvcc_resources(path: Path, defines: dict, arch: str = "sm_90", block_threads
         raise KernelBuildError("nvcc not found on PATH: the offline CUDA report needs the CUDA toolkit")
     with tempfile.TemporaryDirectory() as tmp:
         cmd = ["nvcc", "-cubin", f"-arch={arch}", "-Xptxas", "-v", *_includes(path),
-               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *extra_options,
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
                "-o", str(Path(tmp) / "k.cubin"), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -46,7 +47,8 @@ def nvcc_ptx(path: Path, defines: dict, arch: str = "sm_90", extra_options: tupl
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "k.ptx"
         cmd = ["nvcc", "-ptx", f"-arch={arch}", *_includes(path),
-               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *extra_options, "-o", str(out), str(path)]
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
+               "-o", str(out), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             from .backends.opencl import format_build_error

@@ -10,7 +10,7 @@ from .backends import get_backend
 from .kernels import Variant, load_program, primary_step
 from .layout import HIT_DTYPE
 from .scene.model import Scene
-from .tracing import TraceResult, device_scene, unpack_hits
+from .tracing import DEFAULT_VARIANT, TraceResult, device_scene, unpack_hits
 
 
 @dataclass
@@ -36,10 +36,11 @@ class RenderResult:
 
 def render(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
            repeats: int = 1, warmup: int = 0, write_hits: bool = False, device: str | None = None) -> RenderResult:
-    """Render the scene's camera view. Times ``repeats`` launches after ``warmup`` untimed ones."""
+    """Render the scene's camera view. Times ``repeats`` launches after ``warmup`` untimed ones.
+    ``variant`` None: rtlab.tracing.DEFAULT_VARIANT (the watertight test)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or Variant()
+    variant = variant or DEFAULT_VARIANT
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)
     program = load_program(backend, primary_step(variant), variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))

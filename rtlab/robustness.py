@@ -20,6 +20,19 @@ brute force would be slow):
 8. ``bad_rays``: NaN/Inf in origin or direction, zero directions: **no crash, no hang**, all misses.
 9. ``random``: random rays on BUNNY and SPONZA (10^5 in the benchmark): mismatches.
 
+Issue 13 added three:
+
+10. ``box_planes``: a grid of unit cubes around the origin, axis-aligned rays (and rays with one
+    zero component) lying in its planes, zeros of both signs; a 1e-3 sphere in a 1e5 room, rays
+    from inside the sphere: **misses** and **leaks** (the BVH's fused box test, RT_BVH_BOX_FMA, on
+    near the origin: it must keep what the exact box test keeps).
+11. ``spawn_offsets``: the glass scene (:func:`rtlab.scene.materials.glass_scene`) moved to offsets 0
+    and 1e0..1e5, and spheres on a 2000-wide mirror floor at the origin, rendered with shadows and 3
+    bounces against the float64 Whitted reference: **pixels more than 16/255 off** (spawn offsets
+    too small give acne on large triangles, too large ones speckle scenes far from the origin).
+12. ``dir_lengths``: the same rays with directions of length 1e-30..1e30: **mismatches** (trace()
+    scales directions by powers of two; t comes back in the caller's units).
+
 Counts per row (one row per case x test x traversal):
   leaks       rays that must hit (closed mesh, interior of the plane) and report no hit
   misses      rays the reference hits and the kernel does not (ties at silhouettes included)
@@ -28,6 +41,7 @@ Counts per row (one row per case x test x traversal):
   false_hits  a hit on a zero-area triangle, on a triangle the float64 test misses even with the
               tie slack, or any hit of a NaN/Inf/zero-direction ray
   nan_t       a NaN t written by the kernel
+  px_off      (family 11) pixels whose colour is more than 16/255 off the float64 reference
   failure     "crash: ..." or "hang (> N s)" when the case ran in a child process and died or stalled
 
 Goals with the watertight test and the conservative traversal (``GOALS``): 0 leaks and 0 misses in
@@ -64,20 +78,29 @@ ROBUST_STACK_SIZE = 64
 TIE_ULPS = 16.0
 
 FAMILY_NAMES = {1: "sphere", 2: "plane", 3: "splits", 4: "stairs", 5: "stairs_scaled", 6: "slivers",
-                7: "grazing", 8: "bad_rays", 9: "random"}
+                7: "grazing", 8: "bad_rays", 9: "random", 10: "box_planes", 11: "spawn_offsets", 12: "dir_lengths"}
 # count -> families where the watertight test with the conservative traversal must reach 0
-GOALS = {"leaks": (1, 2), "misses": (1, 2), "mismatches": (3, 4, 5, 9), "false_hits": (6, 8),
-         "nan_t": tuple(range(1, 10)), "failures": tuple(range(1, 10))}
+GOALS = {"leaks": (1, 2, 10), "misses": (1, 2, 10), "mismatches": (3, 4, 5, 9, 10, 12), "false_hits": (6, 8),
+         "nan_t": tuple(range(1, 13)), "failures": tuple(range(1, 13))}
+# Family 11: a pixel is "off" when a channel differs from the float64 reference by more than this
+PIXEL_OFF = 16
+GLASS_OFFSETS = (0.0, 1.0, 1e1, 1e2, 1e3, 1e4, 1e5)
+GLASS_BOUNCES = 3
+ROOM_HALF = 5.0e4
+SMALL_SPHERE = (1e-3, (1234.5, -987.25, 2345.125))   # radius, centre
+DIRECTION_LENGTHS = (1e-30, 1e-20, 1e-10, 1.0, 1e10, 1e20, 1e30)   # t of 1e-40 would overflow float32
 
 # Sizes: "test" keeps PoCL runs short; "bench" is the issue's full suite (127² stairs, 10^5 rays).
 SIZES = {
     "test": dict(sphere_subdiv=4, sphere_rays=5000, plane_quads=8, plane_rays=5000, split_rays=1500,
                  stairs_grid=43, scaled_grid=22, slivers=60, sliver_rays=1500, grazing_rays=1500,
-                 bad_ray_sets=4, random_rays=1500, random_scenes=("bunny",)),
+                 bad_ray_sets=4, random_rays=1500, random_scenes=("bunny",), grid_cubes=3, plane_rays_axis=1500,
+                 room_rays=1500, glass_size=40, glass_offsets=(0.0, 1e1, 1e3, 1e4, 1e5), length_rays=300),
     "bench": dict(sphere_subdiv=5, sphere_rays=100_000, plane_quads=64, plane_rays=50_000,
                   split_rays=50_000, stairs_grid=127, scaled_grid=127, slivers=2000, sliver_rays=50_000,
                   grazing_rays=50_000, bad_ray_sets=40, random_rays=100_000,
-                  random_scenes=("bunny", "sponza")),
+                  random_scenes=("bunny", "sponza"), grid_cubes=6, plane_rays_axis=50_000, room_rays=50_000,
+                  glass_size=128, glass_offsets=GLASS_OFFSETS, length_rays=10_000),
 }
 
 
@@ -92,6 +115,8 @@ class Case:
     counts: tuple[str, ...]      # what this family is about (the issue's wording)
     must_hit: np.ndarray | None = None   # (N,) bool: rays that cannot escape (closed mesh, plane interior)
     bad: np.ndarray | None = None        # (N,) bool: NaN/Inf/zero-direction rays (must miss)
+    target_tris: np.ndarray | None = None  # ids a must_hit ray must hit (None: any); others are leaks
+    render: dict | None = None           # family 11: render_whitted options; rays are the camera's pixels
     _reference: object = field(default=None, repr=False)
 
     @property
@@ -100,7 +125,10 @@ class Case:
 
     def reference(self):
         """float64 closest hits (computed once): brute force where it is cheap, else the
-        bit-identical BVH tracer."""
+        bit-identical BVH tracer; for a render case (family 11) the float64 Whitted render."""
+        if self._reference is None and self.render is not None:
+            from .reference.whitted import reference_whitted
+            self._reference = reference_whitted(self.scene, bounces=self.render["bounces"])
         if self._reference is None:
             from .reference import brute_force_trace, reference_trace
             v, f = self.scene.vertices, self.scene.faces
@@ -133,6 +161,7 @@ class RobustnessRow:
     ties: int = 0
     false_hits: int = 0
     nan_t: int = 0
+    px_off: int = -1                    # family 11 only
     failure: str = ""
     t_rel_err_max: float = float("nan")
     kernel_ms: float = 0.0
@@ -523,6 +552,149 @@ def family_random(n_rays: int, scenes=("bunny", "sponza"), size: int = 64, seed:
     return cases
 
 
+def _signed_zeros(rng, d: np.ndarray) -> np.ndarray:
+    """d with each zero component given a random sign (+0 or -0)."""
+    d = np.asarray(d, np.float32).copy()
+    zero = d == 0.0
+    d[zero] = np.where(rng.uniform(size=int(zero.sum())) < 0.5, np.float32(0.0), np.float32(-0.0))
+    return d
+
+
+def family_box_planes(n_rays: int, cubes: int, room_rays: int, seed: int = 10) -> list[Case]:
+    """10. (a) cubes^3 unit cubes filling [-cubes/2, cubes/2]^3 (cubes even) or [0, cubes]^3, each
+    closed on its own; rays along an axis (60 %) or with one zero component (40 %), lying in grid
+    planes (every zero component's coordinate on a plane, 0 included), zeros of random sign: every
+    ray whose coordinates lie within the grid hits. (b) a 1e-3 sphere (SMALL_SPHERE) inside a
+    closed 1e5 room centred on the origin; rays from inside the sphere as family 1: every ray must
+    hit the sphere, not the room behind it. Both scenes lie near the origin, so the BVH takes its
+    fused box test (rtlab.device_scene.near_origin)."""
+    import trimesh
+    rng = np.random.default_rng(seed)
+    lo = -(cubes // 2) if cubes % 2 == 0 else 0
+    v, f = _merge([_box((lo + i, lo + j, lo + k), (lo + i + 1, lo + j + 1, lo + k + 1))
+                   for i in range(cubes) for j in range(cubes) for k in range(cubes)])
+    grid = _scene(f"cube_grid_{cubes}", v, f)
+    planes = np.arange(lo, lo + cubes + 1, dtype=np.float64)
+    axis = rng.integers(0, 3, n_rays)
+    o = np.empty((n_rays, 3))
+    d = np.zeros((n_rays, 3))
+    rows = np.arange(n_rays)
+    oblique = rng.uniform(size=n_rays) < 0.4        # moves along a second axis too: one zero component
+    second = (axis + 1 + rng.integers(0, 2, n_rays)) % 3
+    for b in range(3):                              # on a grid plane (edges where two are), or anywhere
+        on_plane = rng.uniform(size=n_rays) < 0.75
+        o[:, b] = np.where(on_plane, rng.choice(planes, n_rays), rng.uniform(lo - 0.5, lo + cubes + 0.5, n_rays))
+    sign = rng.choice([-1.0, 1.0], n_rays)
+    o[rows, axis] = np.where(sign > 0, lo - 1.0, lo + cubes + 1.0)   # outside, heading in
+    d[rows, axis] = sign
+    # an oblique ray also moves along a second axis, through a point inside the grid halfway across
+    start2 = rng.uniform(lo, lo + cubes, n_rays)
+    s2 = rng.choice([-1.0, 1.0], n_rays)
+    o[oblique, second[oblique]] = start2[oblique] - s2[oblique] * (1.0 + cubes / 2.0)
+    d[oblique, second[oblique]] = s2[oblique]
+    d32 = _signed_zeros(rng, d)
+    o32 = _f32(o)
+    inside = np.ones(n_rays, bool)
+    for b in range(3):
+        lies = d32[:, b] == 0.0
+        inside &= ~lies | ((o32[:, b] >= lo) & (o32[:, b] <= lo + cubes))
+    cases = [Case(10, f"{cubes}^3 unit cubes, rays in their planes, zeros of both signs", grid, o32, d32,
+                  ("misses",), must_hit=inside)]
+
+    radius, centre = SMALL_SPHERE
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    room_v, room_f = _box((-ROOM_HALF,) * 3, (ROOM_HALF,) * 3)
+    sv = mesh.vertices + np.asarray(centre)
+    v, f = _merge([(sv, mesh.faces), (room_v, room_f)])
+    room = _scene("small_sphere_room", v, f)
+    vs = room.vertices[:len(sv)].astype(np.float64)
+    o = _f32(np.asarray(centre) + _unit(rng.normal(size=(room_rays, 3))) * (0.5 * radius
+                                                                             * rng.uniform(0, 1, (room_rays, 1)) ** (1 / 3)))
+    o = o.astype(np.float64)
+    dirs = rng.normal(size=(room_rays, 3))
+    third = room_rays // 3
+    dirs[third:2 * third] = vs[rng.integers(0, len(vs), third)] - o[third:2 * third]
+    edges = mesh.edges_unique[rng.integers(0, len(mesh.edges_unique), room_rays - 2 * third)]
+    k = rng.uniform(0, 1, (len(edges), 1))
+    dirs[2 * third:] = vs[edges[:, 0]] * (1 - k) + vs[edges[:, 1]] * k - o[2 * third:]
+    cases.append(Case(10, f"{radius:g} sphere at {centre} in a {2 * ROOM_HALF:g} room", room, _f32(o),
+                      _f32(_unit(dirs)), ("leaks",), must_hit=np.ones(room_rays, bool),
+                      target_tris=np.arange(len(mesh.faces))))
+    return cases
+
+
+def moved_scene(scene: Scene, offset) -> Scene:
+    """The scene, its camera and its lights moved by ``offset`` (float64, rounded to float32 once)."""
+    off = np.asarray(offset, np.float64)
+    cam = scene.camera
+    camera = Camera(tuple(np.asarray(cam.eye) + off), tuple(np.asarray(cam.target) + off), cam.up, cam.fov_deg,
+                    cam.width, cam.height)
+    lights = [Light(tuple(np.asarray(light.position) + off), light.color, light.intensity) for light in scene.lights]
+    return Scene(f"{scene.name}_at_{off.max():g}", _f32(scene.vertices.astype(np.float64) + off), scene.faces,
+                 scene.material_ids, scene.materials, camera, lights, scene.vertex_normals, scene.source)
+
+
+def mirror_floor_scene(size: int, half: float = 1000.0) -> Scene:
+    """Spheres (glass, chrome) and a box on a 2 half-wide floor of two triangles that half-mirrors,
+    lit from low and from high: shadow and reflection rays leave points of huge triangles near the
+    origin, where a spawn offset below the triangle test's t error shows as acne."""
+    import trimesh
+    floor = _quads(np.array([[[-half, 0, -half], [-half, 0, half], [half, 0, half], [half, 0, -half]]], float))
+    glass = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    glass.apply_translation([0.0, 1.0, 0.0])
+    chrome = trimesh.creation.icosphere(subdivisions=3, radius=0.7)
+    chrome.apply_translation([1.8, 0.7, -0.5])
+    box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+    box.apply_translation([-1.7, 0.5, -0.3])
+    parts = [floor, (glass.vertices, glass.faces), (chrome.vertices, chrome.faces), (box.vertices, box.faces)]
+    v, f = _merge(parts)
+    ids = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]).astype(np.int32)
+    materials = [Material("floor", diffuse=(0.7, 0.7, 0.7), specular=(0.3, 0.3, 0.3), shininess=30.0, reflectivity=0.5),
+                 Material("glass", diffuse=(0.9, 0.95, 1.0), specular=(0.8, 0.8, 0.8), shininess=80.0,
+                          transparency=0.9, ior=1.5),
+                 Material("chrome", diffuse=(0.7, 0.7, 0.7), reflectivity=0.85),
+                 Material("red", diffuse=(0.8, 0.2, 0.2))]
+    camera = Camera((0.3, 1.6, 5.5), (0.0, 0.6, 0.0), fov_deg=50.0, width=size, height=size)
+    return Scene(f"mirror_floor_{2 * half:g}", _f32(v), f.astype(np.int32), ids, materials, camera,
+                 [Light((6.0, 0.8, 3.0), intensity=0.9), Light((-5.0, 6.0, 2.0), intensity=0.5)], None, "procedural")
+
+
+def family_spawn_offsets(size: int, offsets=GLASS_OFFSETS) -> list[Case]:
+    """11. The glass scene (a glass sphere and cube, a chrome ball, a checker floor) moved by
+    (s, s/2, -s) for s in ``offsets``, and the mirror floor scene at the origin, rendered size x size
+    with shadows and GLASS_BOUNCES bounces: pixels more than PIXEL_OFF/255 off the float64 Whitted
+    reference."""
+    from .scene.materials import glass_scene
+    from .tracing import camera_rays
+    base = glass_scene(size)
+    scenes = [(f"glass scene at {s:g}", moved_scene(base, (s, 0.5 * s, -s))) for s in offsets]
+    scenes.append(("mirror floor 2000 wide at the origin", mirror_floor_scene(size)))
+    cases = []
+    for label, scene in scenes:
+        o, d = camera_rays(scene.camera)
+        cases.append(Case(11, label, scene, o, d, ("px_off",), render={"bounces": GLASS_BOUNCES}))
+    return cases
+
+
+def family_dir_lengths(n_rays: int, lengths=DIRECTION_LENGTHS, seed: int = 12) -> list[Case]:
+    """12. Rays into a unit sphere over a floor (half aimed at the sphere's vertices) with their
+    directions scaled to each length in ``lengths`` (rounded to float32 once): the hits must not
+    depend on the length."""
+    import trimesh
+    rng = np.random.default_rng(seed)
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    floor = _quads(np.array([[[-4, -1, -4], [4, -1, -4], [4, -1, 4], [-4, -1, 4]]], float))
+    v, f = _merge([(mesh.vertices, mesh.faces), floor])
+    scene = _scene("sphere_floor", v, f)
+    o = np.column_stack([rng.uniform(-3, 3, n_rays), rng.uniform(0.5, 3, n_rays), rng.uniform(-3, 3, n_rays)])
+    o[::2] *= 1.5
+    target = np.where(rng.uniform(size=(n_rays, 1)) < 0.5, mesh.vertices[rng.integers(0, len(mesh.vertices), n_rays)],
+                      rng.uniform(-2, 2, (n_rays, 3)) * [1, 0, 1] + [0, -1, 0])
+    unit = _unit(target - o)
+    return [Case(12, f"direction length {length:g}", scene, _f32(o), _f32(unit * length), ("mismatches",))
+            for length in lengths]
+
+
 def family_cases(family: int, size: str = "test") -> list[Case]:
     """The cases of one family (1-9) at size "test" (PoCL-friendly) or "bench" (the issue's sizes).
     Memoised: the same Scene objects come back, so their device uploads and trees are reused."""
@@ -544,6 +716,9 @@ def _family_cases(family: int, size: str) -> list[Case]:
         7: lambda: family_grazing(s["grazing_rays"]),
         8: lambda: family_bad_rays(s["bad_ray_sets"]),
         9: lambda: family_random(s["random_rays"], s["random_scenes"]),
+        10: lambda: family_box_planes(s["plane_rays_axis"], s["grid_cubes"], s["room_rays"]),
+        11: lambda: family_spawn_offsets(s["glass_size"], s["glass_offsets"]),
+        12: lambda: family_dir_lengths(s["length_rays"]),
     }
     if family not in makers:
         raise RtlabError(f"unknown robustness family {family}; families: "
@@ -582,8 +757,9 @@ def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessR
     row.mismatches, row.ties = cmp.n_mismatch, cmp.n_ties
     row.t_rel_err_max = cmp.t_rel_err_max
     row.nan_t = int(np.isnan(t).sum())
+    reached = k_hit if case.target_tris is None else np.isin(tri, case.target_tris)
     if case.must_hit is not None:
-        row.leaks = int((case.must_hit & ~k_hit).sum())
+        row.leaks = int((case.must_hit & ~reached).sum())
     false = np.zeros(case.n_rays, bool)
     if case.bad is not None:
         false |= case.bad & k_hit
@@ -600,7 +776,7 @@ def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessR
         t64, _, _ = intersect_ray_triangles_f64(case.origins[idx], case.directions[idx], tri[idx], v, f, eps=eps)
         false[idx] |= ~usable | ~np.isfinite(t64)
     row.false_hits = int(false.sum())
-    bad_idx = np.flatnonzero(cmp.mismatch | false | ((case.must_hit if case.must_hit is not None else False) & ~k_hit))
+    bad_idx = np.flatnonzero(cmp.mismatch | false | ((case.must_hit if case.must_hit is not None else False) & ~reached))
     row.first_bad = bad_idx[:5].tolist()
     return row
 
@@ -617,9 +793,31 @@ def _backend_spec(backend) -> tuple[str, str | None]:
     return backend.name, backend.device_name
 
 
+def render_case(case: Case, backend, isect: str, traversal: str, conservative: int | None = None):
+    """Family 11: the case's Whitted render, (image, primary hit ids, kernel ms). Shadows one-pass,
+    case.render["bounces"] bounces; ``conservative`` as in trace_case (passed as a define)."""
+    from .kernels import Variant
+    from .whitted import render_whitted
+    variant = Variant(traversal=traversal, intersection=isect)
+    extra = {} if conservative is None else {"RT_CONSERVATIVE": int(conservative)}
+    result = render_whitted(case.scene, backend, variant, bounces=case.render["bounces"], defines=extra)
+    return result.image, result.median_ms
+
+
+def count_render(case: Case, ref, image: np.ndarray, row: RobustnessRow) -> RobustnessRow:
+    """Family 11: pixels more than PIXEL_OFF/255 off the float64 reference."""
+    delta = np.abs(image.astype(np.int32) - ref.image.astype(np.int32)).max(axis=2)
+    row.px_off = int((delta > PIXEL_OFF).sum())
+    row.first_bad = np.flatnonzero(delta.reshape(-1) > PIXEL_OFF)[:5].tolist()
+    return row
+
+
 def _trace_or_failure(case, backend, isect, traversal, conservative):
-    """trace_case, or the error as a failure string (a build error fails this combination only)."""
+    """trace_case (render_case for family 11), or the error as a failure string (a build error
+    fails this combination only)."""
     try:
+        if case.render is not None:
+            return render_case(case, backend, isect, traversal, conservative)
         return trace_case(case, backend, isect, traversal, conservative)
     except Exception as e:
         return f"error: {type(e).__name__}: {e}"
@@ -704,13 +902,15 @@ def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Ite
         kernels._lookup(kernels.INTERSECTIONS, name, "intersection test")
     for name in traversals:
         kernels._lookup(kernels.TRAVERSALS, name, "traversal")
-    combos = [(i, tr, c) for i in isects for tr in traversals for c in conservative]
+    all_combos = [(i, tr, c) for i in isects for tr in traversals for c in conservative]
     isolate = set(isolate)
     rows = []
     for family in families:
         for ci, case in enumerate(family_cases(family, size)):
             if progress:
                 progress(f"family {family} ({FAMILY_NAMES[family]}): {case.label}")
+            # the packet traversal has no Whitted kernels (its shared stack lives in lab step 03's)
+            combos = [c for c in all_combos if case.render is None or c[1] != "packet"]
             ref = case.reference()
             if family in isolate:
                 outcomes = _run_isolated(backend, family, size, ci, combos, timeout_s)
@@ -722,6 +922,9 @@ def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Ite
                                     case.n_rays)
                 if isinstance(out, str):
                     row.failure = out
+                elif case.render is not None:
+                    image, row.kernel_ms = out
+                    count_render(case, ref, image, row)
                 else:
                     tri, t, row.kernel_ms = out
                     count_case(case, ref, tri, t, row)
@@ -740,6 +943,8 @@ def aggregate(rows: list[RobustnessRow]) -> list[RobustnessRow]:
             continue
         for k in ("rays", "ref_hits", "leaks", "misses", "mismatches", "ties", "false_hits", "nan_t"):
             setattr(a, k, getattr(a, k) + getattr(r, k))
+        if r.px_off >= 0:                                      # -1: not counted (families other than 11)
+            a.px_off = max(a.px_off, 0) + r.px_off
         a.failure = a.failure or r.failure
         a.kernel_ms += r.kernel_ms
         a.t_rel_err_max = float(np.nanmax([a.t_rel_err_max, r.t_rel_err_max]))
@@ -747,13 +952,14 @@ def aggregate(rows: list[RobustnessRow]) -> list[RobustnessRow]:
 
 
 TABLE_COLUMNS = ("family", "case", "test", "traversal", "cons.", "rays", "leaks", "misses", "mismatches",
-                 "ties", "false hits", "NaN t", "failure", "max rel dt", "ms")
+                 "ties", "false hits", "NaN t", "px off", "failure", "max rel dt", "ms")
 
 
 def row_cells(r: RobustnessRow) -> list[str]:
     dt = "-" if np.isnan(r.t_rel_err_max) else f"{r.t_rel_err_max:.1e}"
     return [str(r.family), r.case, r.isect, r.traversal, str(r.conservative), f"{r.rays:,}", str(r.leaks),
-            str(r.misses), str(r.mismatches), str(r.ties), str(r.false_hits), str(r.nan_t), r.failure or "-",
+            str(r.misses), str(r.mismatches), str(r.ties), str(r.false_hits), str(r.nan_t),
+            "-" if r.px_off < 0 else str(r.px_off), r.failure or "-",
             dt, f"{r.kernel_ms:.1f}"]
 
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .backends import get_backend
-from .device_scene import DeviceScene
+from .device_scene import DeviceScene, scene_fingerprint
 from .errors import RtlabError
 from .kernels import Variant, load_program, primary_step
 from .layout import HIT_DTYPE, float4_rows
@@ -21,19 +21,41 @@ TRACE_BLOCK = 128
 
 _device_scenes: dict = {}
 DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its buffers) past that
+# Directions whose largest component lies outside this range are scaled by a power of two into
+# [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
+# read as a zero direction), above it products with coordinates overflow.
+DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
+# What trace(), render() and render_whitted() run when no variant is named: the stack traversal with
+# the watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through
+# shared edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 13-24 % of the
+# rays aimed at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13).
+# The lab steps and the paper's benches name their variants and keep the paper's.
+DEFAULT_VARIANT = Variant(intersection="watertight")
 
 
-def device_scene(scene: Scene, backend) -> DeviceScene:
-    """The scene uploaded to ``backend``, once per (scene object, backend), for the most recently
-    used few: benches that derive many scenes (material presets) do not hold every upload."""
-    key = (id(scene), id(backend))
+def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
+    """The scene uploaded to ``backend``, once per scene content (:func:`scene_fingerprint`: vertices,
+    faces, material ids, normals) and backend, for the most recently used few: editing a scene's
+    arrays in place or assigning new ones uploads it again, never returns the old hits. ``tree``
+    uploads with that kd-tree instead of the cached build (kept for this content and backend).
+    The scene is validated (Scene.validate) before its first upload; its material ids are checked
+    against its materials on every call, since materials can be reassigned without a new upload."""
+    key = (scene_fingerprint(scene), id(backend))
     entry = _device_scenes.pop(key, None)
-    if entry is None or entry[0] is not scene:
-        entry = (scene, DeviceScene.upload(backend, scene))
-    _device_scenes[key] = entry            # most recent last
+    if entry is None or entry[0] is not backend or tree is not None:
+        scene.validate()                    # may store the arrays as float32/int32: key them so
+        key = (scene_fingerprint(scene), id(backend))
+        entry = _device_scenes.pop(key, None)
+        if entry is None or entry[0] is not backend or tree is not None:
+            entry = (backend, DeviceScene.upload(backend, scene, tree))
+    ds = entry[1]
+    if ds.max_material_id >= len(scene.materials):
+        scene.validate()                    # raises, naming the first face with a bad id
+    ds.scene = scene                        # same content; lights, materials, camera from the caller's
+    _device_scenes[key] = entry             # most recent last
     while len(_device_scenes) > DEVICE_SCENES_KEPT:
         _device_scenes.pop(next(iter(_device_scenes)))
-    return entry[1]
+    return ds
 
 
 @dataclass
@@ -42,9 +64,10 @@ class TraceResult:
     tri: np.ndarray      # (N,) int32, -1 where missed
     u: np.ndarray
     v: np.ndarray
-    kernel_ms: float     # device time of the tracing kernel
+    kernel_ms: float     # device time of the tracing kernel (median over the timed launches)
     backend: str = ""
     device: str = ""
+    launches_ms: tuple = ()   # each timed launch's device time (``repeats`` of trace())
 
     @property
     def hit(self) -> np.ndarray:
@@ -63,36 +86,117 @@ def _rays_f32(a, name: str) -> np.ndarray:
     return a.astype(np.float32, copy=False)
 
 
+def _scaled_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directions whose largest component is outside DIRECTION_RANGE, divided by a power of two s so
+    that it lies in [1, 2): (directions, s per ray). A power of two changes no rounding, so the
+    kernel traces the very same ray, o + t d = o + (t s) (d / s): its interval is (tmin s, tmax s)
+    and t = t_kernel / s exactly. NaN, infinite and zero directions keep s = 1 (they miss)."""
+    largest = np.abs(directions).max(axis=1, initial=0.0).astype(np.float64)
+    low, high = DIRECTION_RANGE
+    rescale = np.isfinite(largest) & (largest > 0.0) & ((largest < low) | (largest > high))
+    scale = np.ones(len(directions))
+    if rescale.any():
+        exponent = np.frexp(largest[rescale])[1]           # largest = f 2^e, f in [0.5, 1)
+        scale[rescale] = np.ldexp(1.0, exponent - 1)        # largest / scale in [1, 2)
+        directions = directions.astype(np.float64)
+        directions[rescale] /= scale[rescale, None]
+        directions = directions.astype(np.float32)
+    return directions, scale
+
+
+def _ray_bounds(tmin, tmax, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """tmin and tmax as (n,) float64; a negative tmin is an error (an empty interval is not)."""
+    try:
+        lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
+        hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+    except ValueError:
+        raise RtlabError(f"tmin and tmax must be scalars or one value per ray ({n}), got shapes "
+                         f"{np.shape(tmin)} and {np.shape(tmax)}") from None
+    if np.any(lo < 0.0):
+        first = int(np.flatnonzero(lo < 0.0)[0])
+        raise RtlabError(f"tmin must be >= 0, got {lo[first]:g} (ray {first}): the traversals start at the ray's "
+                         "origin; to trace from behind it, move the origin to o + tmin d and trace from 0")
+    return lo, hi
+
+
+_ray_buffers: dict = {}
+
+
+def ray_buffers(backend, n: int):
+    """Device buffers for n rays and their hits (origins, directions, hits), kept per backend for the
+    most recent ray count: a caller tracing batch after batch of one size allocates once."""
+    key = id(backend)
+    entry = _ray_buffers.get(key)
+    if entry is None or entry[0] is not backend or entry[1] != n:
+        entry = (backend, n, (backend.empty(n * 16), backend.empty(n * 16), backend.empty(n * HIT_DTYPE.itemsize)))
+        _ray_buffers[key] = entry
+    return entry[2]
+
+
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
-          defines: dict | None = None, min_stack_size: int = 0) -> TraceResult:
-    """Closest hit along each ray within (tmin, tmax). Rays with NaN/Inf components or a zero
-    direction are reported as misses. ``backend`` is a Backend or a name ("opencl", "cuda").
+          defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,
+          warmup: int = 0, width: int | None = None) -> TraceResult:
+    """Closest hit along each ray o + t d within (tmin, tmax), t in units of |d| (d need not be
+    normalised: any finite, non-zero length works). At exactly equal t the lowest triangle id
+    wins, in every traversal and triangle test (as in the float64 reference), so all variants
+    report the same triangle at a tie: duplicated triangles, or two triangles of an edge whose
+    float32 t come out equal. With the watertight test (the default) every traversal returns the
+    very same ids; with the others, where the two t of an edge differ by rounding, the packet and
+    the BVH may report the nearer one the kd-tree's cells hide (a tie by the reference's rule,
+    rtlab.reference.compare_hits). Rays with NaN/Inf components or a zero
+    direction are reported as misses. ``tmin``, ``tmax``: scalars or one per ray; tmin must be
+    >= 0 (a RtlabError otherwise). ``variant`` None: DEFAULT_VARIANT (watertight; a Variant you
+    name keeps its own test). ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
-    stack at least that deep, so one program serves scenes of different depths."""
+    stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
+    many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
+    median device time. ``width``: the rays form an image of that many columns, row-major (as
+    camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
+    order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
+    The hits are the same either way."""
     origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
+    n = origins.shape[0]
+    lo, hi = _ray_bounds(tmin, tmax, n)
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or Variant()
+    variant = variant or DEFAULT_VARIANT
     ds = device_scene(scene, backend)
-    n = origins.shape[0]
     if n == 0:
         empty = np.zeros(0, np.float32)
         return TraceResult(empty, np.zeros(0, np.int32), empty, empty, 0.0, backend.name, backend.device_name)
+    directions, scale = _scaled_directions(directions)
     features = ds.features(variant)
     if features.stack_size < min_stack_size:
         features = replace(features, stack_size=int(min_stack_size))
     program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
     ds.set_constants(program, None, variant)
-    o_buf = backend.to_device(float4_rows(origins, tmin))
-    d_buf = backend.to_device(float4_rows(directions, tmax))
-    h_buf = backend.empty(n * HIT_DTYPE.itemsize)
-    ms = program.launch("trace_rays", (n,), (TRACE_BLOCK,),
-                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",))
+    o_buf, d_buf, h_buf = ray_buffers(backend, n)
+    backend.fill(o_buf, float4_rows(origins, lo * scale))
+    backend.fill(d_buf, float4_rows(directions, hi * scale))
+    launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width else \
+        (lambda: program.launch("trace_rays", (n,), (TRACE_BLOCK,),
+                                ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
+    times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
-    return TraceResult(t, tri, u, v, ms, backend.name, backend.device_name)
+    if np.any(scale != 1.0):
+        t = (t / scale).astype(np.float32)
+    return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
+
+
+def _grid_launch(program, ds, variant: Variant, n: int, width: int, buffers):
+    """The launch of trace_ray_grid over rays laid out as rows of ``width`` (trace's ``width``)."""
+    width = int(width)
+    if width <= 0 or n % width:
+        raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
+    if primary_step(variant) != PRIMARY_STEP:
+        raise RtlabError(f"width= needs lab step {PRIMARY_STEP}'s kernels; {variant.label()} runs in "
+                         f"{primary_step(variant)}'s, which trace a plain list of rays")
+    height = n // width
+    args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
+    return lambda: program.launch("trace_ray_grid", (width, height), variant.block, args, constants=("frame",))
 
 
 def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,7 @@ from .errors import RtlabError
 from .kernels import SceneFeatures, Variant, load_program
 from .layout import HIT_DTYPE
 from .scene.model import Scene
-from .tracing import TraceResult, device_scene, unpack_hits
+from .tracing import DEFAULT_VARIANT, TraceResult, device_scene, unpack_hits
 
 SHADOWS_STEP = "04_shadows"
 TREE_STEP = "05_kernel_tree"
@@ -131,12 +131,14 @@ def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact:
 def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
                    shadows: str = "one-pass", bounces: int = 0, compact: bool = False, repeats: int = 1,
                    warmup: int = 0, write_hits: bool = False, fresnel: str = "schlick",
-                   specialise: bool = True, device: str | None = None, schedule: str = "tree") -> WhittedResult:
+                   specialise: bool = True, device: str | None = None, schedule: str = "tree",
+                   defines: dict | None = None) -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
-    (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones."""
+    (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones. ``defines``
+    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: DEFAULT_VARIANT."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or Variant()
+    variant = variant or DEFAULT_VARIANT
     if variant.traversal == "packet":
         raise RtlabError("the packet traversal has no shadow or secondary-ray kernels (its shared stack lives in "
                          "lab step 03's entry kernels); choose a single-ray traversal")
@@ -151,6 +153,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     tree = bounces > 0 or wavefront
     step = TREE_STEP if tree else SHADOWS_STEP
     extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree, schedule)
+    extra.update(defines or {})
     program = load_program(backend, step, variant, features, **extra)
     ds.set_constants(program, camera, variant)
     frame_class = _WavefrontFrame if wavefront else _TreeFrame if tree else _ShadowFrame
@@ -479,7 +482,7 @@ def hit_records(t, tri, u, v) -> np.ndarray:
 def _probe_program(scene: Scene, backend, step: str, variant: Variant | None):
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
-    variant = variant or Variant()
+    variant = variant or DEFAULT_VARIANT
     ds = device_scene(scene, backend)
     program = load_program(backend, step, variant, ds.features(variant))
     ds.set_constants(program, None, variant)

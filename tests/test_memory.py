@@ -70,7 +70,7 @@ def test_trace_rays_through_placements(backend, default_scene):
     lo, hi = default_scene.vertices.min(0), default_scene.vertices.max(0)
     o = rng.uniform(lo, hi, (3000, 3)).astype(np.float32)
     d = rng.normal(size=(3000, 3)).astype(np.float32)
-    base = rtlab.trace(default_scene, o, d, backend)
+    base = rtlab.trace(default_scene, o, d, backend, Variant())
     assert base.hit.sum() > 300
     for v in placements(backend):
         r = rtlab.trace(default_scene, o, d, backend, v)
@@ -192,7 +192,7 @@ def test_register_cap_reaches_nvcc():
     defines = build_defines(Variant(), SceneFeatures(stack_size=32))
     src = kernel_source("00_primary", "cuda")
     free = nvcc_resources(src, defines)["render_primary"].registers
-    cap = 32
+    cap = 24       # below what render_primary takes uncapped (32 to 40 with the stack traversal)
     assert free > cap, f"render_primary needs only {free} registers: pick a lower cap for this test"
     capped = nvcc_resources(src, defines, extra_options=build_options(Variant(max_registers=cap), "cuda"))
     assert capped["render_primary"].registers <= cap

@@ -25,7 +25,10 @@ KNOWN_LEAKING = set()
 # 2026-11-22: family 1 Möller 0.150, Wald 0.030, Plücker 0.004; family 2 Möller 0.107, Wald 0.038,
 # Plücker 0.004. Bounded at about twice that (rounding differs on devices with fused multiply-add).
 LEAK_RATE_BOUND = {(1, "moller"): 0.30, (1, "wald"): 0.065, (1, "plucker"): 0.01,
-                   (2, "moller"): 0.22, (2, "wald"): 0.08, (2, "plucker"): 0.008}
+                   (2, "moller"): 0.22, (2, "wald"): 0.08, (2, "plucker"): 0.008,
+                   # family 10's 1e-3 sphere 2.8e3 from the origin is 8 ulps across: measured on PoCL 3.1,
+                   # 2026-11-23, Moller 0.025, Wald 0.020, Plucker 0.021 (kd and BVH alike)
+                   (10, "moller"): 0.05, (10, "wald"): 0.05, (10, "plucker"): 0.05}
 # Mismatches (beyond ties) and false hits of the other tests: none measured on PoCL in families
 # 3-9; a small allowance for devices that contract into fused multiply-adds.
 OTHER_RATE_BOUND = 0.005
@@ -49,6 +52,8 @@ def _describe(r) -> str:
 
 
 def _goal_marks(family, traversal):
+    if family == 11 and traversal == "packet":
+        return [pytest.mark.skip(reason="family 11 renders Whitted frames: the packet traversal has no such kernels")]
     if family in GOALS["leaks"] and traversal in KNOWN_LEAKING:
         return [pytest.mark.xfail(strict=True, reason=f"{traversal} leaks a few rays (see KNOWN_LEAKING)")]
     return []
@@ -65,7 +70,7 @@ def test_watertight_conservative_meets_goals(backend, family, traversal):
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("family,traversal", [pytest.param(f, t, id=f"{f}-{FAMILY_NAMES[f]}-{t}")
+@pytest.mark.parametrize("family,traversal", [pytest.param(f, t, marks=_goal_marks(f, t), id=f"{f}-{FAMILY_NAMES[f]}-{t}")
                                               for f in FAMILIES for t in TRAVERSALS])
 def test_other_tests_stay_within_measured_rates(backend, family, traversal):
     """Möller–Trumbore, Wald and Plücker: leak rates bounded (families 1-2), mismatches and false
@@ -103,15 +108,27 @@ def test_every_family_has_cases_the_reference_agrees_with():
         assert cases, f"family {family} has no case"
         for case in cases:
             ref = case.reference()
+            if case.render is not None:          # family 11: a float64 Whitted render
+                assert ref.image.shape == (case.scene.camera.height, case.scene.camera.width, 3)
+                assert len(np.unique(ref.image.reshape(-1, 3), axis=0)) > 50, case.label
+                continue
             assert ref.tri.shape == (case.n_rays,)
             if case.must_hit is not None:
                 assert ref.tri[case.must_hit].min() >= 0, case.label
+                if case.target_tris is not None:
+                    assert np.isin(ref.tri[case.must_hit], case.target_tris).all(), case.label
             if case.bad is not None:
                 assert np.all(ref.tri[case.bad] < 0), case.label
             if family in (4, 5):
                 assert np.all(ref.tri >= 0), case.label
     sphere = family_cases(1, "test")[0]
     assert np.abs(sphere.scene.vertices).max() > 1e5
+    from rtlab.device_scene import near_origin
+    assert all(near_origin(c.scene) for c in family_cases(10, "test")), "family 10 must take the fused box test"
+    glass = [c for c in family_cases(11, "test") if c.label.startswith("glass")]
+    assert np.abs(glass[-1].scene.vertices).max(axis=1).min() > 0.9e5
+    lengths = [np.linalg.norm(c.directions.astype(np.float64), axis=1) for c in family_cases(12, "test")]
+    assert min(x.min() for x in lengths) < 1e-29 and max(x.max() for x in lengths) > 1e29
     offsets = [np.abs(c.scene.vertices).min() for c in family_cases(5, "test")]
     assert max(offsets) >= 1e4 - 1
 
@@ -138,3 +155,45 @@ def test_bench_robustness_command(backend, tmp_path):
     assert result.exit_code == 0, result.output
     text = md.read_text()
     assert "| 4 | stairs | moller | stack |" in text and "| 4 | stairs | watertight | stack | 1 |" in text
+
+
+# ---- issue 13's families ----------------------------------------------------------------------
+def test_fused_box_test_keeps_what_the_exact_kd_traversal_keeps(backend):
+    """Family 10 (box planes, a small sphere in a large room; the BVH on its fused box test): for
+    every triangle test the BVH misses and leaks no more than the stack kd traversal, whose box
+    and split tests are exact."""
+    rows = family_rows(backend, 10)
+    for r in rows:
+        if r.traversal != "bvh":
+            continue
+        stack = next(s for s in rows if s.case == r.case and s.isect == r.isect and s.traversal == "stack")
+        assert r.misses <= stack.misses and r.leaks <= stack.leaks, _describe(r) + " | stack: " + _describe(stack)
+
+
+# Family 11: pixels more than 16/255 off the float64 Whitted render, as a share of all pixels, per
+# case. Measured on PoCL 3.1 (40², 2026-11-23) with offsets from the rounding bound: 0 up to 1e3,
+# <= 0.25 % at 1e4, <= 2.4 % at 1e5, <= 0.07 % (acne) on the mirror floor; with the former fixed
+# 256-ulp offsets 0.2 %, 5.4 %, 14 % and, for the watertight test, 4 % of acne on the mirror floor.
+SPAWN_PIXEL_SHARE = {"glass scene at 0": 0.0, "glass scene at 10": 0.0, "glass scene at 1000": 0.003,
+                     "glass scene at 10000": 0.01, "glass scene at 100000": 0.05,
+                     "mirror floor 2000 wide at the origin": 0.003}
+
+
+def test_spawn_offsets_neither_acne_nor_speckles(backend):
+    """Family 11: every test and traversal renders the glass scene within SPAWN_PIXEL_SHARE of the
+    float64 reference from the origin to 1e5, and the mirror floor at the origin without acne."""
+    rows = family_rows(backend, 11)
+    assert {r.case for r in rows} == set(SPAWN_PIXEL_SHARE)
+    bad = [_describe(r) + f", {r.px_off} pixels off" for r in rows
+           if r.failure or r.px_off < 0 or r.px_off > SPAWN_PIXEL_SHARE[r.case] * r.rays]
+    assert not bad, "\n".join(bad)
+
+
+def test_direction_length_changes_nothing(backend):
+    """Family 12: directions of length 1e-30..1e30, every test and traversal: no mismatch, and t
+    in the caller's units: within 1e-3 of the reference (grazing hits on the tessellated sphere
+    reach 1e-4 at any length, unit length included; a t not scaled back is off by the length)."""
+    rows = family_rows(backend, 12)
+    bad = [_describe(r) + f", max rel dt {r.t_rel_err_max:.1e}" for r in rows
+           if r.failure or r.mismatches or not r.t_rel_err_max <= 1e-3]
+    assert not bad, "\n".join(bad)

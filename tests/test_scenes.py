@@ -407,3 +407,85 @@ def test_no_cache_env(tmp_path, private_cache, monkeypatch):
     path = _write(tmp_path, "tri.ply", _ply(TRIANGLE, [(0, 1, 2)]))
     assert not load_mesh_file(path).from_cache and not load_mesh_file(path).from_cache
     assert not private_cache.exists()
+
+
+# ---- issue 13: a Scene and a Camera check themselves ----------------------------------------------
+def _tri_scene(vertices=TRIANGLE, faces=((0, 1, 2),), material_ids=(0,), materials=None, **kw):
+    return Scene("probe", np.asarray(vertices, np.float32) if np.ndim(vertices) else vertices,
+                 np.asarray(faces), np.asarray(material_ids), materials if materials is not None else [Material()],
+                 Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0)), **kw)
+
+
+@pytest.mark.parametrize("kw, expected", [
+    (dict(material_ids=(3,)), ["face 0 has material id 3", "1 materials", "valid ids 0..0"]),
+    (dict(faces=((0, 1, 2), (2, 1, 0)), material_ids=(0, -1)), ["face 1 has material id -1"]),
+    (dict(faces=((0, 1, 2), (2, 1, 0)), material_ids=(0,)), ["material_ids", "one id per face", "(2,)", "(1,)"]),
+    (dict(materials=[]), ["no materials"]),
+    (dict(faces=((0, 1, 2), (0, 1, 3))), ["face 1 = [0, 1, 3]", "valid indices 0..2"]),
+    (dict(faces=((0, 1, 2), (-1, 1, 2))), ["face 1 = [-1, 1, 2]"]),
+    (dict(faces=((0, 1, 2, 0),)), ["faces must have shape (N, 3)", "(1, 4)"]),
+    (dict(vertices=np.zeros((3, 2), np.float32)), ["vertices must have shape (N, 3)", "(3, 2)"]),
+    (dict(faces=np.zeros((0, 3), np.int32), material_ids=np.zeros(0, np.int32)), ["no triangles", "nothing to trace"]),
+    (dict(faces=((0.0, 1.0, 2.0),)), ["faces must hold integers"]),
+    (dict(vertex_normals=np.zeros((2, 3), np.float32)), ["vertex_normals", "one normal per vertex"]),
+])
+def test_bad_scene_is_one_clear_error(kw, expected):
+    """Wrong shapes, missing vertices, out-of-range material ids, an empty mesh: one SceneError
+    naming the first bad face, index or id (not a numpy error, a segfault or a silent misread)."""
+    with pytest.raises(SceneError) as caught:
+        _tri_scene(**kw)
+    message = str(caught.value)
+    assert "scene 'probe'" in message and all(e in message for e in expected), message
+
+
+def test_scene_stores_arrays_as_the_kernels_read_them():
+    scene = _tri_scene(vertices=np.asarray(TRIANGLE, np.float64), faces=np.array([[0, 1, 2]], np.int64),
+                       material_ids=np.array([0], np.uint8))
+    assert scene.vertices.dtype == np.float32 and scene.faces.dtype == np.int32
+    assert scene.material_ids.dtype == np.int32 and scene.vertices.flags.c_contiguous
+
+
+@pytest.mark.parametrize("kw, expected", [
+    (dict(eye=(1, 2, 3), target=(1, 2, 3)), "same point"),
+    (dict(eye=(0, 5, 0), target=(0, 0, 0)), "parallel to the view direction"),
+    (dict(eye=(0, -5, 0), target=(0, 0, 0), up=(0, -2, 0)), "parallel to the view direction"),
+    (dict(eye=(0, 0, 5), target=(0, 0, 0), up=(0, 0, 0)), "zero vector"),
+    (dict(eye=(0, 0, 5), target=(0, 0, 0), fov_deg=0.0), "fov_deg"),
+    (dict(eye=(0, 0, 5), target=(0, 0, 0), fov_deg=180.0), "fov_deg"),
+    (dict(eye=(0, 0, 5), target=(0, 0, 0), width=0), "width"),
+    (dict(eye=(0, 0, float("nan")), target=(0, 0, 0)), "finite"),
+    (dict(eye=(0, 0), target=(0, 0, 0)), "three"),
+])
+def test_degenerate_camera_is_refused(kw, expected):
+    """A camera whose basis does not exist (up along the view, eye on the target) rendered an
+    all-background image; now it is an error when it is made, saying why."""
+    with pytest.raises(SceneError, match=expected):
+        Camera(**kw)
+
+
+def test_camera_up_nearly_but_not_parallel_is_fine():
+    cam = Camera((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 1e-3))
+    eye, u, v, w = cam.basis()
+    assert np.all(np.isfinite(u)) and abs(float(np.dot(u, w))) < 1e-6
+
+
+@pytest.mark.parametrize("scale", [1e-14, 1e15])
+def test_out_of_range_coordinates_warn(scale):
+    """Coordinates all below 1e-12, or beyond 1e13, make float32 ray tests meaningless: a
+    ScaleWarning when the scene is made (and in scene_warnings), none for ordinary scales."""
+    from rtlab.scene.model import ScaleWarning
+    with pytest.warns(ScaleWarning, match="float32 ray tests"):
+        scene = _tri_scene(vertices=np.asarray(TRIANGLE, np.float64) * scale)
+    assert any("coordinates are" in w for w in scene_warnings(scene))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScaleWarning)
+        for ok in (1e-9, 1.0, 1e12):
+            _tri_scene(vertices=np.asarray(TRIANGLE, np.float64) * ok)
+
+
+def test_tiny_mesh_file_warns_at_load(tmp_path, private_cache):
+    from rtlab.scene.model import ScaleWarning
+    path = _write(tmp_path, "tiny.ply", _ply([(0, 0, 0), (1e-14, 0, 0), (0, 1e-14, 0)], [(0, 1, 2)]))
+    with pytest.warns(ScaleWarning, match=str(path.stem)):
+        load_scene(str(path), size=16)

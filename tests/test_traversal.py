@@ -52,7 +52,7 @@ def _scene_from_mesh(name, vertices, faces):
 
 def _use_tree(scene, backend, tree):
     """Trace ``scene`` on ``backend`` with this kd-tree instead of the cached default build."""
-    tracing._device_scenes[(id(scene), id(backend))] = (scene, DeviceScene.upload(backend, scene, tree))
+    tracing.device_scene(scene, backend, tree=tree)
 
 
 def _random_rays(scene, n, seed):
@@ -94,7 +94,7 @@ class Case:
     def __init__(self, scene, o, d, backend, t_tol=T_REL_TOL):
         self.scene, self.o, self.d, self.t_tol = scene, o, d, t_tol
         self.ref = reference_trace(scene.vertices, scene.faces, o, d)
-        self.stack = trace(scene, o, d, backend=backend)
+        self.stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
 
     def compare(self, got, where):
         s = self.scene
@@ -228,7 +228,7 @@ def test_deep_tree(backend, deep_scene, variant):
     scene, tree, o, d = deep_scene
     _use_tree(scene, backend, tree)
     ref = reference_trace(scene.vertices, scene.faces, o, d)
-    stack = trace(scene, o, d, backend=backend)
+    stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
     got = trace(scene, o, d, backend=backend, variant=variant)
     assert np.mean(stack.tri >= 0) > 0.5
     # Tiny, steep triangles: the float32 test's t is off by up to ~1e-4 (the stack's too), and by
@@ -459,8 +459,9 @@ def test_traversal_step_compiles_for_sm90(variant):
 
 
 def test_fused_box_test_only_for_scenes_near_the_origin():
-    """The BVH's fused slab form (RT_BVH_BOX_FMA) rounds by half an ulp of the origin's
-    coordinates: the loader allows it only where those stay within a few extents of the scene."""
+    """The BVH's fused slab form (RT_BVH_BOX_FMA) pads by the rounding of the origin's coordinates,
+    which loosens its culling far from the origin: the loader takes it only where those stay within
+    a few extents of the scene."""
     from rtlab.device_scene import near_origin, scene_features
     from rtlab.kernels import build_defines
     near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
@@ -469,3 +470,217 @@ def test_fused_box_test_only_for_scenes_near_the_origin():
     assert build_defines(Variant("bvh"), scene_features(near, 8))["RT_BVH_BOX_FMA"] == 1
     assert build_defines(Variant("bvh"), scene_features(far, 8))["RT_BVH_BOX_FMA"] == 0
     assert "RT_BVH_BOX_FMA" not in build_defines(Variant("stack"), scene_features(near, 8))
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 13: ties, the fused box test, stale uploads, the ray interval, extreme direction lengths
+# ------------------------------------------------------------------------------------------------
+ISECTS = ["moller", "wald", "plucker", "watertight"]
+
+
+@pytest.fixture(scope="module")
+def duplicated_scene():
+    """A sphere over a floor with every triangle there three times, the copies at random ids (so a
+    copy with a lower id comes before or after in any traversal's order); rays at random points,
+    at vertices and at points on edges (ties between neighbours as well as between copies)."""
+    import trimesh
+    rng = np.random.default_rng(13)
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    floor_v = np.array([[-3, -1, -3], [3, -1, -3], [3, -1, 3], [-3, -1, 3]], np.float64)
+    vertices = np.concatenate([sphere.vertices, floor_v])
+    base = np.concatenate([sphere.faces, len(sphere.vertices) + np.array([[0, 1, 2], [0, 2, 3]])])
+    copies = np.concatenate([base, base, base])
+    order = rng.permutation(len(copies))
+    faces = copies[order]
+    group = np.empty(len(faces), np.int64)
+    group[:] = order % len(base)                       # which original triangle each id copies
+    lowest = np.full(len(base), len(faces))
+    np.minimum.at(lowest, group, np.arange(len(faces)))
+    scene = _scene_from_mesh("copies", vertices, faces)
+    n = 1500
+    o = np.column_stack([rng.uniform(-2.5, 2.5, n), rng.uniform(1.5, 3.0, n), rng.uniform(-2.5, 2.5, n)])
+    edges = sphere.edges_unique[rng.integers(0, len(sphere.edges_unique), n)]
+    k = rng.uniform(0, 1, (n, 1))
+    targets = np.where(rng.uniform(size=(n, 1)) < 0.5, sphere.vertices[rng.integers(0, len(sphere.vertices), n)],
+                       sphere.vertices[edges[:, 0]] * (1 - k) + sphere.vertices[edges[:, 1]] * k)
+    d = targets - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return scene, o.astype(np.float32), d.astype(np.float32), lowest[group]
+
+
+@pytest.mark.parametrize("isect", ISECTS)
+def test_ties_go_to_the_lowest_triangle_id_in_every_traversal(backend, duplicated_scene, isect):
+    """At exactly equal t the lowest id wins: a duplicated triangle is always reported as its
+    lowest copy, in every traversal. The kd traversals that visit the stack's cells (restart,
+    short stack, ropes) return exactly its ids, shared edges too; so do all traversals with the
+    watertight test and its conservative traversal. The packet (it visits the cells its neighbours
+    need) and the BVH (whole triangles, not clipped to cells) may report the other triangle of an
+    edge only where the non-watertight tests' float32 t differ by rounding: ties to the reference."""
+    scene, o, d, lowest = duplicated_scene
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    hit_ref = ref.tri >= 0
+    assert np.array_equal(ref.tri[hit_ref], lowest[ref.tri[hit_ref]]), "the reference breaks ties alike"
+    stack = trace(scene, o, d, backend=backend, variant=Variant("stack", isect))
+    assert np.mean(stack.tri >= 0) > 0.9
+    for traversal in ["stack"] + VARIANTS:
+        got = stack if traversal == "stack" else trace(scene, o, d, backend=backend, variant=Variant(traversal, isect))
+        hit = got.tri >= 0
+        higher = np.flatnonzero(hit & (got.tri != lowest[np.maximum(got.tri, 0)]))
+        assert higher.size == 0, f"{traversal}/{isect}: {higher.size} rays report a higher copy, e.g. ray {higher[0]}"
+        c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, d)
+        assert c.n_mismatch == 0, f"{traversal}/{isect}: {c.summary()}"
+        if isect == "watertight" or traversal in ("restart", "shortstack", "ropes"):
+            differ = np.flatnonzero(got.tri != stack.tri)
+            assert differ.size == 0, (f"{traversal}/{isect}: {differ.size} rays report another triangle than the "
+                                      f"stack, e.g. ray {differ[0]}: {got.tri[differ[0]]} against {stack.tri[differ[0]]}")
+
+
+def _cube_grid(cubes, lo):
+    from rtlab.robustness import _box, _merge
+    v, f = _merge([_box((lo + i, lo + j, lo + k), (lo + i + 1, lo + j + 1, lo + k + 1))
+                   for i in range(cubes) for j in range(cubes) for k in range(cubes)])
+    return _scene_from_mesh("cubes", v, f)
+
+
+@pytest.mark.parametrize("lo", [0, -2])
+def test_fused_box_test_keeps_rays_in_box_planes(backend, lo):
+    """A grid of unit cubes near the origin (the BVH takes its fused box test, RT_BVH_BOX_FMA):
+    axis-aligned rays lying in the grid's planes, the outer ones included, with +0 and -0 in their
+    zero components, hit exactly as the exact box test and the float64 reference say."""
+    from rtlab.device_scene import near_origin
+    scene = _cube_grid(4, lo)
+    assert near_origin(scene)
+    planes = np.arange(lo, lo + 5, dtype=np.float32)
+    gy, gz = np.meshgrid(planes, planes, indexing="ij")
+    o = np.stack([np.full(gy.size, lo - 1.0, np.float32), gy.ravel(), gz.ravel()], 1)
+    rays_o, rays_d = [], []
+    for zero in (np.float32(0.0), np.float32(-0.0)):
+        for axis in range(3):
+            oo = np.roll(o, axis, axis=1)
+            dd = np.full_like(oo, zero)
+            dd[:, axis] = 1.0
+            rays_o.append(oo)
+            rays_d.append(dd)
+    o, d = np.concatenate(rays_o), np.concatenate(rays_d)
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    assert np.all(ref.tri >= 0)
+    for isect in ISECTS:
+        for fused in (0, 1):
+            got = trace(scene, o, d, backend=backend, variant=Variant("bvh", isect), defines={"RT_BVH_BOX_FMA": fused})
+            c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, d)
+            assert np.all(got.tri >= 0) and c.n_mismatch == 0, f"bvh/{isect} fused={fused}: {np.sum(got.tri < 0)} missed"
+
+
+def test_fused_box_test_does_not_cull_small_objects_far_from_the_origin(backend):
+    """A 1e-3 sphere 2.8e3 from the origin inside a 1e5 room (so near_origin holds): rays from inside
+    the sphere that the BVH's fused box test loses must not outnumber the exact test's."""
+    from rtlab.robustness import family_cases, trace_case
+    case = family_cases(10, "test")[1]
+    for isect in ("moller", "wald", "plucker"):
+        lost = {}
+        for fused in (0, 1):
+            tri, _, _ = trace_case(case, backend, isect, "bvh", RT_BVH_BOX_FMA=fused)
+            lost[fused] = int(np.sum(~np.isin(tri, case.target_tris)))
+        stack_tri, _, _ = trace_case(case, backend, isect, "stack")
+        kd = int(np.sum(~np.isin(stack_tri, case.target_tris)))
+        assert lost[1] <= lost[0] and lost[1] <= kd, f"{isect}: fused {lost[1]}, exact {lost[0]}, kd stack {kd} leaks"
+
+
+def test_edited_scene_is_uploaded_again(backend):
+    """The device upload is keyed by content: an in-place edit of the vertices, new faces or new
+    material ids give the new geometry's hits, never the old upload's; equal content shares it."""
+    import dataclasses
+    scene = rtlab.load_scene("default", size=24)
+    o, d = camera_rays(scene.camera)
+    before = trace(scene, o, d, backend=backend)
+    scene.vertices[:, 1] += np.float32(0.25)                    # in place: same array object
+    moved = trace(scene, o, d, backend=backend)
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    assert compare_hits(ref, moved.tri, moved.t, scene.vertices, scene.faces, o, d).n_mismatch == 0
+    assert np.mean(moved.t != before.t) > 0.3
+    keep = np.arange(0, scene.n_triangles, 2)
+    scene.faces, scene.material_ids = scene.faces[keep], scene.material_ids[keep]   # assigned anew
+    fewer = trace(scene, o, d, backend=backend)
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    assert compare_hits(ref, fewer.tri, fewer.t, scene.vertices, scene.faces, o, d).n_mismatch == 0
+    hits = render(scene, backend, size=24, write_hits=True).hits
+    assert np.array_equal(hits.tri, fewer.tri)
+    twin = dataclasses.replace(scene, vertices=scene.vertices.copy(), faces=scene.faces.copy())
+    assert tracing.device_scene(twin, backend) is tracing.device_scene(scene, backend)
+
+
+def test_reassigned_materials_are_checked_before_launch(backend):
+    """Material ids beyond the materials list crashed the renderers; now a SceneError names the face."""
+    from rtlab.errors import SceneError
+    from rtlab.whitted import render_whitted
+    scene = rtlab.load_scene("default", size=16)
+    trace(scene, *camera_rays(scene.camera), backend=backend)       # uploaded with valid ids
+    scene.materials = scene.materials[:2]
+    for run in (lambda: render(scene, backend), lambda: render_whitted(scene, backend),
+                lambda: trace(scene, *camera_rays(scene.camera), backend=backend)):
+        with pytest.raises(SceneError, match=r"face \d+ has material id \d+, but the scene has 2 materials"):
+            run()
+
+
+def test_negative_tmin_is_refused(backend):
+    """A negative tmin was answered differently by each traversal; it is an error saying what to do."""
+    from rtlab.errors import RtlabError
+    scene = _scene_from_mesh("one", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    o = np.array([[0.2, 0.2, -1.0], [0.2, 0.2, 1.0]], np.float32)
+    d = np.array([[0, 0, 1], [0, 0, 1]], np.float32)
+    with pytest.raises(RtlabError, match="tmin must be >= 0, got -1"):
+        trace(scene, o, d, backend=backend, tmin=-1.0)
+    with pytest.raises(RtlabError, match=r"ray 1"):
+        trace(scene, o, d, backend=backend, tmin=np.array([0.0, -0.5]))
+    ok = trace(scene, o, d, backend=backend, tmin=np.array([0.0, 0.5]), tmax=np.array([5.0, 5.0]))
+    assert ok.tri.tolist() == [0, -1]
+
+
+@pytest.mark.parametrize("variant", ["stack", "bvh", "ropes"])
+def test_direction_length_does_not_change_the_answer(backend, variant):
+    """Directions of length 2^-100 .. 2^100 (and 1e-30 .. 1e30): the same hits as unit directions,
+    t in the caller's units (t * |d| the same distance). A power of two scales exactly."""
+    scene = rtlab.load_scene("default", size=24)
+    o, d = camera_rays(scene.camera)
+    unit = trace(scene, o, d, backend=backend, variant=Variant(variant))
+    hit = unit.tri >= 0
+    for scale in (2.0 ** -100, 2.0 ** -64, 2.0 ** 64, 2.0 ** 100):
+        got = trace(scene, o, (d * scale).astype(np.float32), backend=backend, variant=Variant(variant))
+        assert np.array_equal(got.tri, unit.tri), f"length {scale:g}: {np.sum(got.tri != unit.tri)} rays differ"
+        assert np.array_equal(got.t[hit] * np.float32(scale), unit.t[hit])
+    for length in (1e-30, 1e30):
+        dl = (d.astype(np.float64) * length).astype(np.float32)
+        got = trace(scene, o, dl, backend=backend, variant=Variant(variant))
+        ref = reference_trace(scene.vertices, scene.faces, o, dl)
+        c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, dl)
+        assert c.n_mismatch == 0 and c.t_rel_err_max <= T_REL_TOL, f"length {length:g}: {c.summary()}"
+
+
+@pytest.mark.gpu
+def test_gpu_ties_and_box_planes_agree_across_cuda_and_nvidia_opencl(duplicated_scene):
+    """On the GPU machine (fused multiply-adds in hardware, not PoCL's): exact ties go to the lowest
+    copy, rays lying in the planes of a cube grid near the origin keep their hits with the BVH's
+    fused box test, and with the watertight test CUDA and NVIDIA OpenCL name the same triangles."""
+    from rtlab.backends import get_backend
+    backends = [get_backend("cuda"), get_backend("opencl", "NVIDIA")]
+    scene, o, d, lowest = duplicated_scene
+    grid = _cube_grid(4, -2)
+    planes = np.arange(-2, 3, dtype=np.float32)
+    gy, gz = np.meshgrid(planes, planes, indexing="ij")
+    go = np.stack([np.full(gy.size, -3.0, np.float32), gy.ravel(), gz.ravel()], 1)
+    go = np.concatenate([go, go])
+    gd = np.zeros_like(go)
+    gd[:, 0] = 1.0
+    gd[len(gd) // 2:, 1:] = np.float32(-0.0)
+    ids = {}
+    for be in backends:
+        for traversal in ["stack"] + VARIANTS:
+            for isect in ISECTS:
+                got = trace(scene, o, d, backend=be, variant=Variant(traversal, isect))
+                hit = got.tri >= 0
+                assert np.array_equal(got.tri[hit], lowest[got.tri[hit]]), f"{be.name} {traversal}/{isect}"
+                ids[be.name, traversal, isect] = got.tri
+        box = trace(grid, go, gd, backend=be, variant=Variant("bvh", "moller"))
+        assert np.all(box.tri >= 0), f"{be.name}: {np.sum(box.tri < 0)} rays in box planes lost"
+    for traversal in ["stack"] + VARIANTS:
+        assert np.array_equal(ids["cuda", traversal, "watertight"], ids["opencl", traversal, "watertight"]), traversal

@@ -17,6 +17,20 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
 }
 
+// Closest hit of rays laid out as an image, width x height row-major (rtlab.trace(..., width=)):
+// a 2-D launch whose blocks take tiles of it in block_pixel's order, as render_primary's do, so a
+// warp traces neighbouring rays.
+RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
+                              const float4 *__restrict__ directions, float4 *__restrict__ hits, int width, int height)
+{
+    int x, y;
+    block_pixel(blockIdx.x, blockIdx.y, blockDim.x, blockDim.y, threadIdx.x, threadIdx.y, &x, &y);
+    if (x >= width || y >= height)
+        return;
+    int i = y * width + x;
+    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+}
+
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).
 RT_KERNEL void render_primary(RT_SCENE_PARAMS, unsigned int *__restrict__ pixels, float4 *__restrict__ hits)
 {

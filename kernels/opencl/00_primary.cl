@@ -14,6 +14,21 @@ __kernel void trace_rays(RT_SCENE_PARAMS, __global const float4 *restrict origin
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
 }
 
+// Closest hit of rays laid out as an image, width x height row-major (rtlab.trace(..., width=)):
+// a 2-D launch whose work-groups take tiles of it in block_pixel's order, as render_primary's do.
+__kernel void trace_ray_grid(RT_SCENE_PARAMS, __global const float4 *restrict origins,
+                             __global const float4 *restrict directions, __global float4 *restrict hits,
+                             int width, int height, __constant RtFrame *frame)
+{
+    int x, y;
+    block_pixel(get_group_id(0), get_group_id(1), get_local_size(0), get_local_size(1), get_local_id(0),
+                get_local_id(1), &x, &y);
+    if (x >= width || y >= height)
+        return;
+    int i = y * width + x;
+    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+}
+
 // One work-item a pixel; the work-group shape is the launch's (the paper's Fig. 4 studies it).
 __kernel void render_primary(RT_SCENE_PARAMS, __global unsigned int *restrict pixels,
                              __global float4 *restrict hits, __constant RtFrame *frame,

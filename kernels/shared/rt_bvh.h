@@ -21,37 +21,86 @@
 #define BVH_LEAF_BITS 4            /* at most 15 triangles a leaf (sync with rtlab/accel/bvh.py) */
 #define BVH_NODE_STRIDE 4
 
-/* The inverse direction the fused box test uses (Aila & Laine): a zero component is replaced by
- * 2^-64 of its sign, so the inverse stays finite and b inv - o inv keeps the sign of b - o (times
- * a power of two, exactly) for rays that lie in a box's plane; an infinite inverse would give
- * inf - inf there. Coordinates up to 1e19 keep o inv finite. */
+/* ---- The fused box test (RT_BVH_BOX_FMA; Aila & Laine 2009) ----------------------------------
+ * A slab's plane distance (b - o) / d as one fused multiply-add, b inv - o inv, with inv = 1/d and
+ * o inv computed once a ray: a quarter fewer instructions a box, 11 % off a SPONZA Whitted frame on
+ * the H100. Two hazards, both handled in the per-ray setup (bvh_ray), so the box test itself keeps
+ * two fma a slab (and picks each slab's near and far plane by the sign of inv, per ray):
+ *  1. o inv is rounded (half an ulp of o / d), an error that grows with |o| and not with the
+ *     distance: a box near an origin far from 0 (a 1e-3 sphere in a 1e5 room) could be culled.
+ *     The near plane takes o inv rounded up by a bound of that error, the far plane rounded down
+ *     (o_near / o_far below), so the fused distances bracket the exact ones: no box the exact test
+ *     keeps is culled.
+ *  2. A zero direction component (either sign) has no finite inverse. It gets 2^64 of its sign
+ *     (RT_BVH_MIN_DIR), so b inv - o inv keeps the exact sign of b - o, and its pad is the ray's
+ *     whole length in the scene box: a ray lying in the box's plane (b == o) or inside its slab is
+ *     never cut, whichever sign its zero has; one outside the slab by more than a few ulps is.
+ * Coordinates up to 1e19 keep o inv finite. */
 #define RT_BVH_MIN_DIR 5.421010862e-20f    /* 2^-64 */
+#define RT_BVH_ULP_PAD 2.3841858e-7f       /* 2^-22: two ulps, o inv's rounding and the pad's own */
 
+typedef struct {
+    float3 inv;      /* 1/d, or +-2^64 where |d| <= RT_BVH_MIN_DIR */
+    float3 o_near;   /* o inv plus its pad: the near plane's distance comes out smaller */
+    float3 o_far;    /* o inv minus its pad: the far plane's distance comes out larger */
+} BvhRay;
+
+/* The inverse of direction component d for the fused form: 1/d, or 2^64 of d's sign (-0 too) */
 RT_FN float bvh_inverse(float d)
 {
-    return 1.0f / (rt_abs(d) > RT_BVH_MIN_DIR ? d : (d < 0.0f || 1.0f / d < 0.0f ? -RT_BVH_MIN_DIR : RT_BVH_MIN_DIR));
+    int negative = d < 0.0f || 1.0f / d < 0.0f;
+    return rt_abs(d) > RT_BVH_MIN_DIR ? 1.0f / d : (negative ? -1.0f : 1.0f) / RT_BVH_MIN_DIR;
+}
+
+/* How far o inv = oi must move along one axis: its rounding bound, and for a zero component
+ * (|d| <= RT_BVH_MIN_DIR) the ray's length t_pad as well */
+RT_FN float bvh_origin_pad(float d, float oi, float t_pad)
+{
+    return rt_abs(oi) * RT_BVH_ULP_PAD + (rt_abs(d) > RT_BVH_MIN_DIR ? 0.0f : t_pad);
+}
+
+/* The per-ray constants of the fused box test for a ray whose segment in the scene box ends at
+ * t_exit (the clip of the scene box, before the loop). */
+RT_FN BvhRay bvh_ray(const Ray *ray, float t_exit)
+{
+    BvhRay r;
+    float t_pad = 2.0f * t_exit;
+    r.inv = f3(bvh_inverse(ray->d.x), bvh_inverse(ray->d.y), bvh_inverse(ray->d.z));
+    float3 oi = hadamard3(ray->o, r.inv);
+    float3 pad = f3(bvh_origin_pad(ray->d.x, oi.x, t_pad), bvh_origin_pad(ray->d.y, oi.y, t_pad),
+                    bvh_origin_pad(ray->d.z, oi.z, t_pad));
+    r.o_near = add3(oi, pad);
+    r.o_far = sub3(oi, pad);
+    return r;
+}
+
+/* One slab in the fused form: near and far plane by the sign of inv (fewer registers than Aila &
+ * Laine's min/max of both distances, which would need each plane's pad by that sign as well) */
+RT_FN void clip_slab_fused(float lo, float hi, float inv, float o_near, float o_far, float *t0, float *t1)
+{
+    int forward = inv >= 0.0f;
+    *t0 = rt_max(*t0, rt_fma(forward ? lo : hi, inv, -o_near));
+    *t1 = rt_min(*t1, rt_fma(forward ? hi : lo, inv, -o_far));
 }
 
 /* Whether the ray's segment meets the child box [lo, hi] before the closest hit so far; its entry
- * distance in *t_enter. Inclusive at hit->t: rounding of the box test must not cut a tie. The ray
- * passed the scene box's clip_ray_box, so it can enter boxes: no per-box check of that. With
- * RT_BVH_BOX_FMA (and not RT_CONSERVATIVE) the slabs take Aila & Laine's fused form, a quarter
- * fewer instructions a box, with inv = bvh_inverse(d) and o_inv = o * inv computed once a ray:
- * 11 % off a SPONZA Whitted frame on the H100. Its rounding grows with |o|, so scenes far from the
- * origin keep the exact form. */
+ * distance in *t_enter. Inclusive at hit->t: a box entered exactly there may hold a lower-id
+ * triangle at the same t (closer_hit). The ray passed the scene box's clip_ray_box, so it can
+ * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA (and not RT_CONSERVATIVE) the slabs
+ * take the fused form above, else the exact (b - o) * inv_d of clip_entering_ray_box. */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
 #define RT_BVH_BOX_FMA 0           /* origin (rtlab.device_scene.near_origin), where it costs no leaks */
 #endif
-RT_FN int hit_bvh_child(const Ray *ray, float3 inv, float3 o_inv, float4 lo, float4 hi, float t_hit, float *t_enter)
+RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *fused, float4 lo, float4 hi, float t_hit, float *t_enter)
 {
 #if RT_CONSERVATIVE || !RT_BVH_BOX_FMA
     float t_exit;
     return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_hit;
 #else
     float t0 = ray->tmin, t1 = ray->tmax;
-    clip_slab_fma(lo.x, hi.x, o_inv.x, inv.x, &t0, &t1);
-    clip_slab_fma(lo.y, hi.y, o_inv.y, inv.y, &t0, &t1);
-    clip_slab_fma(lo.z, hi.z, o_inv.z, inv.z, &t0, &t1);
+    clip_slab_fused(lo.x, hi.x, fused->inv.x, fused->o_near.x, fused->o_far.x, &t0, &t1);
+    clip_slab_fused(lo.y, hi.y, fused->inv.y, fused->o_near.y, fused->o_far.y, &t0, &t1);
+    clip_slab_fused(lo.z, hi.z, fused->inv.z, fused->o_near.z, fused->o_far.z, &t0, &t1);
     *t_enter = t0;
     return t0 <= t1 && t0 <= t_hit;
 #endif
@@ -78,8 +127,7 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
     float t_enter, t_exit;
     if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
         return;
-    float3 inv = f3(bvh_inverse(ray->d.x), bvh_inverse(ray->d.y), bvh_inverse(ray->d.z));
-    float3 o_inv = hadamard3(ray->o, inv);
+    BvhRay fused = bvh_ray(ray, t_exit);
     int stack[RT_STACK_SIZE];
     int sp = 0;
     int ref = 0;
@@ -92,8 +140,8 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
             float4 z = load_node_data(base + 2);
             float4 c = load_node_data(base + 3);
             float e0, e1;
-            int hit0 = hit_bvh_child(ray, inv, o_inv, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), hit->t, &e0);
-            int hit1 = hit_bvh_child(ray, inv, o_inv, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), hit->t, &e1);
+            int hit0 = hit_bvh_child(ray, &fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), hit->t, &e0);
+            int hit1 = hit_bvh_child(ray, &fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), hit->t, &e1);
             int c0 = rt_as_int(c.x), c1 = rt_as_int(c.y);
             if (hit0 && hit1) {
                 int near0 = e0 <= e1;

@@ -8,10 +8,10 @@
  *                        rt_kdtree.h cannot cull what it finds
  * The precomputed layouts are built by rtlab/accel/tri_data.py (sync with that file).
  *
- * Each test updates *hit only for a hit nearer than hit->t and beyond ray->tmin, and says whether
- * it did. Edges are inclusive and triangles two-sided, as in the float64 reference. A NaN t, a
- * zero-area triangle or a ray parallel to the plane never hits: every t test is written as
- * !(t > tmin && t < hit->t), which NaN fails. */
+ * Each test updates *hit only for a hit that closer_hit() accepts (beyond ray->tmin, nearer than
+ * hit->t, or at exactly hit->t on a lower triangle id: rt_types.h), and says whether it did. Edges
+ * are inclusive and triangles two-sided, as in the float64 reference. A NaN t, a zero-area
+ * triangle or a ray parallel to the plane never hits: closer_hit() fails for a NaN t. */
 #ifndef RT_INTERSECT_H
 #define RT_INTERSECT_H
 #include "rt_memory.h"
@@ -81,7 +81,7 @@ RT_FN int intersect_ray_tri_moller(const Ray *ray, float3 v0, float3 v1, float3 
     if (v < 0.0f || u + v > 1.0f)
         return 0;
     float t = dot3(e2, q) * inv_det;
-    if (!(t > ray->tmin && t < hit->t))
+    if (!closer_hit(ray, t, tri, hit))
         return 0;
     hit->t = t;
     hit->u = u;
@@ -105,7 +105,7 @@ RT_FN int intersect_ray_tri_wald(const Ray *ray, const TriWald *acc, int tri, Hi
     /* A ray parallel to the plane gives inf or NaN here; the t test rejects both */
     float inv_nd = 1.0f / (dk + acc->plane.x * du + acc->plane.y * dv);
     float t = (acc->plane.z - ok - acc->plane.x * ou - acc->plane.y * ov) * inv_nd;
-    if (!(t > ray->tmin && t < hit->t))
+    if (!closer_hit(ray, t, tri, hit))
         return 0;
     float hu = ou + t * du;
     float hv = ov + t * dv;
@@ -143,7 +143,7 @@ RT_FN int intersect_ray_tri_plucker(const Ray *ray, const TriPlucker *acc, int t
         return 0;
     float3 n = f3(acc->d0.w, acc->m0.w, acc->d1.w);
     float t = (acc->m1.w - dot3(n, ray->o)) / dot3(n, ray->d);
-    if (!(t > ray->tmin && t < hit->t))
+    if (!closer_hit(ray, t, tri, hit))
         return 0;
     float inv_sum = 1.0f / sum;
     hit->t = t;
@@ -219,7 +219,7 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
     float tz = u * (sz * a.z) + v * (sz * b.z) + w * (sz * c.z);
     float inv_det = 1.0f / det;
     float t = tz * inv_det;
-    if (!(t > ray->tmin && t < hit->t))
+    if (!closer_hit(ray, t, tri, hit))
         return 0;
     hit->t = t;
     hit->u = v * inv_det;
@@ -297,18 +297,6 @@ RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
 RT_FN int ray_can_enter(const Ray *ray)
 {
     return finite3(ray->o) && finite3(ray->d) && dot3(ray->d, ray->d) > 0.0f;
-}
-
-/* One slab in Aila & Laine's form (HPG 2009): t = b inv_d - o inv_d, one fused multiply-add per
- * plane (o_inv = o inv_d, once a ray), near and far by min/max instead of the sign of the
- * direction. Its extra rounding, half an ulp of o inv_d, is far below what decides a hit; it is
- * for culling boxes (the BVH's children, rt_bvh.h, which keeps inv_d finite), not for the exact
- * segment clip_ray_box gives a kd-tree traversal. */
-RT_FN void clip_slab_fma(float lo, float hi, float o_inv, float inv_d, float *t0, float *t1)
-{
-    float ta = rt_fma(lo, inv_d, -o_inv), tb = rt_fma(hi, inv_d, -o_inv);
-    *t0 = rt_max(*t0, rt_min(ta, tb));
-    *t1 = rt_min(*t1, rt_max(ta, tb));
 }
 
 /* Clip a ray that can enter boxes (ray_can_enter) to an axis-aligned box: slab test (Kay &

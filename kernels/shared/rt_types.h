@@ -48,6 +48,15 @@ RT_FN Ray make_ray(float3 o, float3 d, float tmin, float tmax)
     return r;
 }
 
+/* Whether a hit at distance t on triangle tri replaces *hit: t within (tmin, hit->t), or exactly
+ * hit->t on a lower triangle id. The tie rule makes the answer independent of the order triangles
+ * are tested in, so every traversal reports the same triangle where two meet the ray at the same t
+ * (a shared edge or vertex, duplicated triangles), as the float64 reference does. NaN t fails. */
+RT_FN int closer_hit(const Ray *ray, float t, int tri, const Hit *hit)
+{
+    return t > ray->tmin && (t < hit->t || (t == hit->t && tri < hit->tri));
+}
+
 RT_FN Hit make_miss(float tmax)
 {
     Hit h;

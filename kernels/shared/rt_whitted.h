@@ -70,32 +70,33 @@
 
 /* ---- Spawning rays off a surface ------------------------------------------------------------ */
 
-/* Wachter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection", Ray Tracing Gems
- * ch. 6: move each coordinate of p a fixed number of ulps (256 n_i) along the normal n of the side
- * the new ray leaves from, so the offset follows the float exponent of the position and stays
- * above its rounding error at any scale or distance from the origin. Near the origin, where ulps
- * vanish, a small fixed distance instead. Surfaces nearer to each other than the offset (about
- * 2^-15 of the coordinates) cannot be told apart. */
-#define RT_OFFSET_ORIGIN (1.0f / 32.0f)
-#define RT_OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
-#define RT_OFFSET_INT_SCALE 256.0f
-
-RT_FN float offset_coord(float p, float n)
+/* pbrt-v4's spawn offset (Pharr, Jakob & Humphreys, 4th ed., sec. 6.8, OffsetRayOrigin): p lies
+ * within p_err of the exact point in every coordinate, so moving it along the unit normal n by
+ * p_err (|n_x| + |n_y| + |n_z|), the distance along n that covers that error box, puts it on the
+ * side n points to; each coordinate of the sum is then rounded one float further away from p, so
+ * the addition's own rounding cannot pull it back. The offset scales with the triangle's
+ * coordinates (position_error), at any distance from the origin. */
+RT_FN float next_float_away(float x, float direction)
 {
-    int of = (int)(RT_OFFSET_INT_SCALE * n);
-    float p_i = rt_as_float(rt_as_int(p) + (p < 0.0f ? -of : of));
-    return rt_abs(p) < RT_OFFSET_ORIGIN ? p + RT_OFFSET_FLOAT_SCALE * n : p_i;
+    if (direction == 0.0f || !rt_isfinite(x))
+        return x;
+    if (x == 0.0f)
+        return direction > 0.0f ? rt_as_float(1) : -rt_as_float(1);
+    int bits = rt_as_int(x);
+    return rt_as_float((x > 0.0f) == (direction > 0.0f) ? bits + 1 : bits - 1);
 }
 
-RT_FN float3 offset_ray_origin(float3 p, float3 n)
+RT_FN float3 offset_ray_origin(float3 p, float p_err, float3 n)
 {
-    return f3(offset_coord(p.x, n.x), offset_coord(p.y, n.y), offset_coord(p.z, n.z));
+    float d = p_err * (rt_abs(n.x) + rt_abs(n.y) + rt_abs(n.z));
+    float3 o = madd3(p, n, d);
+    return f3(next_float_away(o.x, n.x), next_float_away(o.y, n.y), next_float_away(o.z, n.z));
 }
 
 /* Origin for a ray leaving surface s in direction d: offset to the side d points to. */
 RT_FN float3 spawn_origin(const Surface *s, float3 d)
 {
-    return offset_ray_origin(s->p, dot3(d, s->ng) >= 0.0f ? s->ng : mul3(s->ng, -1.0f));
+    return offset_ray_origin(s->p, s->p_err, dot3(d, s->ng) >= 0.0f ? s->ng : mul3(s->ng, -1.0f));
 }
 
 /* ---- Local shading with shadow rays (§3.2.1) ------------------------------------------------- */

@@ -35,11 +35,37 @@ def list_devices() -> list[str]:
     return [drv.Device(i).name() for i in range(drv.Device.count())]
 
 
+def _arg_type(a) -> str:
+    """pycuda's struct code of one kernel argument: device pointers, texture objects, scalars."""
+    if isinstance(a, np.generic):
+        return {np.dtype(np.int32): "i", np.dtype(np.uint32): "I", np.dtype(np.float32): "f",
+                np.dtype(np.uint64): "Q", np.dtype(np.int64): "q"}[a.dtype]
+    if isinstance(a, (int, float)):
+        raise TypeError(f"kernel argument {a!r}: pass numpy scalars (np.int32, np.float32), not Python numbers")
+    return "P"      # DeviceAllocation (or anything with an int() device address)
+
+
+# A one-thread kernel that waits on the GPU's global timer: queued before a timed launch's start
+# event, it keeps the device busy while the host queues the event and the kernel.
+SPIN_SOURCE = r"""
+extern "C" __global__ void rt_spin(unsigned long long ns)
+{
+    unsigned long long t0, t;
+    asm volatile("mov.u64 %0, %%globaltimer;" : "=l"(t0));
+    do {
+        asm volatile("mov.u64 %0, %%globaltimer;" : "=l"(t));
+    } while (t - t0 < ns);
+}
+"""
+SPIN_NS = 50_000     # ≫ the host's time to record an event and queue a prepared launch (~10 µs)
+
+
 class CudaProgram(Program):
     def __init__(self, backend: "CudaBackend", path: Path, defines: dict, module):
         super().__init__(backend, path, defines)
         self._module = module
         self._functions: dict = {}
+        self._prepared: dict = {}
         self._constants: dict = {}
 
     def function(self, name: str):
@@ -69,15 +95,33 @@ class CudaProgram(Program):
         block3 = tuple(block) + (1,) * (3 - len(block))
         grid = tuple(round_up(g, b) // b for g, b in zip(global_size, block))
         grid3 = grid + (1,) * (3 - len(grid))
-        f = self.function(kernel)
+        f = self.prepared(kernel, args)
         if shared_bytes > 48 * 1024:  # beyond 48 KiB a kernel must opt in
             f.set_attribute(drv.function_attribute.MAX_DYNAMIC_SHARED_SIZE_BYTES, int(shared_bytes))
-        start, end = drv.Event(), drv.Event()
+        # The start event is recorded behind a short GPU spin, so it fires when the spin ends, by
+        # which time the host has queued the kernel: the events then bracket the kernel alone, as
+        # OpenCL's profiling start/end do. Without it the host's launch overhead (pycuda packs the
+        # arguments in Python) lands inside the measured time on an idle GPU.
+        self.backend.spin()
+        start, end = self.backend.events
         start.record()
-        f(*args, block=block3, grid=grid3[:2] if grid3[2] == 1 else grid3, shared=int(shared_bytes))
+        f.prepared_async_call(grid3[:2] if grid3[2] == 1 else grid3, block3, None, *args,
+                              shared_size=int(shared_bytes))
         end.record()
         end.synchronize()
         return end.time_since(start)
+
+    def prepared(self, kernel: str, args):
+        """The kernel with its argument types fixed (pycuda's prepared call: no per-launch Python
+        argument inspection)."""
+        sig = "".join(_arg_type(a) for a in args)
+        key = (kernel, sig)
+        f = self._prepared.get(key)
+        if f is None:
+            f = self._module.get_function(kernel)
+            f.prepare(sig)
+            self._prepared[key] = f
+        return f
 
     def resources(self, kernel, block=None):
         drv = self.backend.drv
@@ -133,6 +177,16 @@ class CudaBackend(Backend):
         self.device_name = d.name()
         self.platform_name = f"CUDA driver {drv.get_driver_version()}, {self.arch}"
         self._programs: dict = {}
+        self._spin = None
+        self.events = (drv.Event(), drv.Event())
+
+    def spin(self, ns: int = SPIN_NS) -> None:
+        """Queue a GPU wait of ``ns`` nanoseconds (see CudaProgram.launch)."""
+        if self._spin is None:
+            from pycuda.compiler import SourceModule
+            self._spin = SourceModule(SPIN_SOURCE, no_extern_c=True, arch=self.arch).get_function("rt_spin")
+            self._spin.prepare("Q")
+        self._spin.prepared_async_call((1, 1, 1), (1, 1, 1), None, np.uint64(ns))
 
     def _release(self):
         try:
@@ -146,16 +200,14 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        from ..kernels import include_dirs
-        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
+        from ..kernels import CUDA_PRECISION_OPTIONS, include_dirs
+        options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
+        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), options)
         if key in self._programs:
             return self._programs[key]
         text = read_source(path)
         source = f'#line 1 "{path}"\n{text}'
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)
-        extra = os.environ.get("RTLAB_NVCC_OPTIONS")
-        if extra:
-            flags += extra.split()
         try:
             module = SourceModule(source, options=flags, include_dirs=[*(str(d) for d in include_dirs(path)), str(Path(path).parent)],
                                   no_extern_c=True, arch=self.arch)

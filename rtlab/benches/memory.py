@@ -145,15 +145,8 @@ def ptx_memory_ops(path, defines: dict, kernel: str = "render_primary", arch: st
     """Local- and shared-memory loads/stores in the kernel's PTX (before register allocation, so
     spills are not among them): where the ray's components are read from."""
     import re
-    import subprocess
-    import tempfile
-    from ..paths import SHARED_KERNEL_DIR
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "k.ptx"
-        subprocess.run(["nvcc", "-ptx", f"-arch={arch}", f"-I{SHARED_KERNEL_DIR}",
-                        *[f"-D{k}={v}" for k, v in sorted(defines.items())], "-o", str(out), str(path)],
-                       check=True, capture_output=True)
-        text = out.read_text()
+    from ..nvcc import nvcc_ptx
+    text = nvcc_ptx(path, defines, arch)
     m = re.search(rf"\.entry {kernel}\b.*?\n}}", text, re.S)
     body = m.group(0) if m else ""
     return {op.replace(".", "_"): len(re.findall(rf"\b{re.escape(op)}\b", body))

@@ -37,6 +37,8 @@ tree: fill the functions of a lab step in place (or in a copy, see below), check
 `rtlab render ... --check`, and grade them the way the course's autograder does with
 `rtlab grade STEP .`. Labs build on each other: lab 03 runs on your camera and stack traversal of
 lab 00, so do them in order (the course's grader uses its own reference for earlier steps).
+rtlab's default triangle test (watertight) is one of lab 02's functions: until then, render with
+`--isect moller` (given).
 
 Local grading runs the visible tests of each step (`labs/<step>/grading.toml`); the course's
 autograder also runs the tests hidden until the due date and the speed tests, which time your
@@ -45,7 +47,7 @@ kernel against the reference kernel. Each lab's README lists every test.
 ```sh
 make render                      # or: pip install -e . (needs PoCL: apt-get install pocl-opencl-icd)
 rtlab lab list
-rtlab render default --size 128 --check           # says which kernel tree it compiles
+rtlab render default --size 128 --isect moller --check   # names the kernel tree it compiles
 rtlab grade 00_primary .                          # your kernels/ as the grader sees them
 ```
 

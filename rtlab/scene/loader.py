@@ -27,7 +27,7 @@ import trimesh
 from rtlab.errors import SceneError
 from rtlab.paths import find_scene_file, scene_search_dirs, user_cache_dir
 from rtlab.scene import presets as _presets
-from rtlab.scene.model import Camera, Light, Material, Scene
+from rtlab.scene.model import Camera, Light, Material, Scene, scale_warning
 from rtlab.scene.procedural import default_scene
 
 log = logging.getLogger(__name__)
@@ -160,8 +160,11 @@ def mesh_warnings(vertices: np.ndarray, faces: np.ndarray, where: str,
 
 
 def scene_warnings(scene: Scene) -> list[str]:
-    """:func:`mesh_warnings` for a loaded scene (the Scene keeps no load-time notes)."""
-    return mesh_warnings(scene.vertices, scene.faces, scene.source or scene.name)
+    """:func:`mesh_warnings` for a loaded scene (the Scene keeps no load-time notes), and whether its
+    coordinates leave the range where float32 ray tests mean anything (:func:`scale_warning`)."""
+    where = scene.source or scene.name
+    scale = scale_warning(scene.vertices, where)
+    return mesh_warnings(scene.vertices, scene.faces, where) + ([scale] if scale else [])
 
 
 # ---- validation --------------------------------------------------------------------------------

@@ -2,12 +2,32 @@
 
 Geometry is an indexed triangle mesh in float32 (the precision the kernels see); the float64
 reference promotes these same float32 values, so both trace the very same triangles.
+
+A Scene checks itself when it is made (:meth:`Scene.validate`; the device upload checks again, since
+fields can be reassigned): array shapes, face indices, material ids. Every builder and kernel may
+then take the data as valid. A bad scene is one SceneError naming the first bad face, index or id;
+coordinates outside the range where float32 ray tests mean anything give a :class:`ScaleWarning`.
+A Camera checks itself the same way (:meth:`Camera.__post_init__`).
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..errors import SceneError
+
+# Largest coordinate magnitude of a scene within which float32 ray tests stay meaningful. Below the
+# low end, the products of three coordinate differences that every test forms (Moller-Trumbore's
+# t = e2.(s x e1) / det, the watertight test's edge functions times z) fall below float32's normal
+# range (1.2e-38) and flush or lose their digits; above the high end they overflow (3.4e38), and
+# float32 spacing exceeds 1e6. The watertight test held everywhere inside this range (issue 13).
+MEANINGFUL_COORDINATES = (1e-12, 1e13)
+
+
+class ScaleWarning(UserWarning):
+    """A scene's coordinates lie outside MEANINGFUL_COORDINATES: rays may silently miss."""
 
 
 @dataclass
@@ -29,15 +49,51 @@ class Light:
     intensity: float = 1.0
 
 
+def _vector3(value, what: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(f"{what} must be three numbers, got {value!r}") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise SceneError(f"{what} must be three finite numbers, got {value!r}")
+    return v
+
+
+# Smallest sine of the angle between a camera's view direction and its up vector: below it the
+# camera's right axis, up x view, is a rounding artefact (the image would be all background).
+CAMERA_MIN_UP_SINE = 1e-6
+
+
 @dataclass
 class Camera:
-    """Pinhole camera: +Y up by default, vertical field of view in degrees, square pixels."""
+    """Pinhole camera: +Y up by default, vertical field of view in degrees, square pixels.
+    Checked when made: finite eye, target and up, eye != target, up not parallel to the view
+    direction, 0 < fov_deg < 180, width and height at least 1 (a SceneError says which)."""
     eye: tuple[float, float, float]
     target: tuple[float, float, float]
     up: tuple[float, float, float] = (0.0, 1.0, 0.0)
     fov_deg: float = 40.0
     width: int = 1024
     height: int = 1024
+
+    def __post_init__(self):
+        eye = _vector3(self.eye, "camera eye")
+        view = _vector3(self.target, "camera target") - eye
+        up = _vector3(self.up, "camera up")
+        if not np.any(view):
+            raise SceneError(f"camera eye and target are the same point {tuple(self.eye)}: no view direction")
+        if not np.any(up):
+            raise SceneError("camera up is the zero vector")
+        sine = np.linalg.norm(np.cross(view / np.linalg.norm(view), up / np.linalg.norm(up)))
+        if not sine > CAMERA_MIN_UP_SINE:
+            raise SceneError(f"camera up {tuple(self.up)} is parallel to the view direction {tuple(view.tolist())} "
+                             f"(eye {tuple(self.eye)} -> target {tuple(self.target)}): choose another up")
+        if not (isinstance(self.fov_deg, (int, float, np.number)) and 0.0 < float(self.fov_deg) < 180.0):
+            raise SceneError(f"camera fov_deg must be between 0 and 180 degrees (exclusive), got {self.fov_deg!r}")
+        for name in ("width", "height"):
+            size = getattr(self, name)
+            if not (isinstance(size, (int, np.integer)) and size >= 1):
+                raise SceneError(f"camera {name} must be a positive integer, got {size!r}")
 
     def with_size(self, width: int, height: int | None = None) -> "Camera":
         return Camera(self.eye, self.target, self.up, self.fov_deg, int(width),
@@ -57,6 +113,43 @@ class Camera:
         return np.stack([eye, right * half_w, up * half_h, fwd]).astype(np.float32)
 
 
+def _array(value, kind: str, what: str, where: str) -> np.ndarray:
+    """``value`` as a numpy array of ``kind`` ("f": real numbers, "i": integers), or a SceneError."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as e:
+        raise SceneError(f"{where}: {what} is not an array ({e})") from None
+    if a.dtype == object or a.dtype.kind not in ("iu" if kind == "i" else "iuf"):
+        wanted = "integers" if kind == "i" else "real numbers"
+        raise SceneError(f"{where}: {what} must hold {wanted}, got dtype {a.dtype}")
+    return a
+
+
+def _rows3(value, kind: str, what: str, where: str) -> np.ndarray:
+    a = _array(value, kind, what, where)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise SceneError(f"{where}: {what} must have shape (N, 3), got {a.shape}")
+    return a
+
+
+def finite_magnitude(vertices: np.ndarray) -> float:
+    """Largest finite |coordinate| of the vertices (0 when there is none)."""
+    a = np.abs(np.asarray(vertices, np.float64))
+    finite = a[np.isfinite(a)]
+    return float(finite.max()) if finite.size else 0.0
+
+
+def scale_warning(vertices: np.ndarray, where: str) -> str | None:
+    """Why the vertices' coordinates are outside MEANINGFUL_COORDINATES, or None."""
+    low, high = MEANINGFUL_COORDINATES
+    m = finite_magnitude(vertices)
+    if m == 0.0 or low <= m <= high:
+        return None
+    side = f"all below {low:g}" if m < low else f"as large as {m:.3g}, beyond {high:g}"
+    return (f"{where}: coordinates are {side} (largest |coordinate| {m:.3g}); float32 ray tests are only "
+            f"meaningful within [{low:g}, {high:g}]: rays may miss silently. Rescale or recentre the scene")
+
+
 @dataclass
 class Scene:
     name: str
@@ -68,6 +161,48 @@ class Scene:
     lights: list[Light] = field(default_factory=list)
     vertex_normals: np.ndarray | None = None  # (V, 3) float32, for interpolated shading; None: flat
     source: str = ""                        # file it came from, or "procedural"
+
+    def __post_init__(self):
+        self.validate()
+        message = scale_warning(self.vertices, f"scene {self.name!r}")
+        if message:
+            warnings.warn(message, ScaleWarning, stacklevel=3)
+
+    def validate(self) -> "Scene":
+        """Check what every builder and kernel relies on, and store the arrays as the kernels read
+        them (float32 vertices and normals, int32 faces and material ids, C order). Raises a
+        SceneError naming the first bad face, index or material id. Returns the scene."""
+        where = f"scene {self.name!r}"
+        vertices = _rows3(self.vertices, "f", "vertices", where)
+        faces = _rows3(self.faces, "i", "faces", where)
+        if len(faces) == 0:
+            raise SceneError(f"{where}: no triangles ({len(vertices)} vertices, 0 faces): there is nothing to trace")
+        bad = np.flatnonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
+        if bad.size:
+            raise SceneError(f"{where}: face {bad[0]} = {faces[bad[0]].tolist()} refers to a vertex that does not "
+                             f"exist (valid indices 0..{len(vertices) - 1}; {bad.size} of {len(faces)} faces do)")
+        ids = _array(self.material_ids, "i", "material_ids", where)
+        if ids.shape != (len(faces),):
+            raise SceneError(f"{where}: material_ids must hold one id per face, shape ({len(faces)},), got {ids.shape}")
+        n_materials = len(self.materials)
+        if n_materials == 0:
+            raise SceneError(f"{where}: no materials; every face needs one (material_ids index into materials)")
+        bad = np.flatnonzero((ids < 0) | (ids >= n_materials))
+        if bad.size:
+            raise SceneError(f"{where}: face {bad[0]} has material id {ids[bad[0]]}, but the scene has {n_materials} "
+                             f"materials (valid ids 0..{n_materials - 1}; {bad.size} of {len(faces)} faces are out of range)")
+        if self.vertex_normals is not None:
+            normals = _rows3(self.vertex_normals, "f", "vertex_normals", where)
+            if len(normals) != len(vertices):
+                raise SceneError(f"{where}: vertex_normals must hold one normal per vertex, shape "
+                                 f"({len(vertices)}, 3), got {normals.shape}")
+            self.vertex_normals = np.ascontiguousarray(normals, np.float32)
+        if not isinstance(self.camera, Camera):
+            raise SceneError(f"{where}: camera must be an rtlab Camera, got {type(self.camera).__name__}")
+        self.vertices = np.ascontiguousarray(vertices, np.float32)
+        self.faces = np.ascontiguousarray(faces, np.int32)
+        self.material_ids = np.ascontiguousarray(ids, np.int32)
+        return self
 
     @property
     def n_triangles(self) -> int:

@@ -1,0 +1,126 @@
+"""The trace API as a library user and the benchmarks call it: repeated launches on the same rays,
+device buffers reused between calls, CUDA launch timing, and the benchmark rays of
+../shared/bench/README.md (`rtlab bench rays`)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import rtlab
+from rtlab.benches.rays import diffuse_rays, make_rays, peer_figures
+from rtlab.kernels import Variant
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.tracing import camera_rays, ray_buffers, trace
+
+from .conftest import require_scene_file
+
+
+@pytest.fixture(scope="module")
+def small_scene():
+    scene = rtlab.load_scene("default", size=32)
+    return scene
+
+
+def test_repeats_time_every_launch_and_give_the_same_hits(backend, small_scene):
+    o, d = camera_rays(small_scene.camera)
+    once = trace(small_scene, o, d, backend, Variant(traversal="bvh"))
+    many = trace(small_scene, o, d, backend, Variant(traversal="bvh"), repeats=5, warmup=2)
+    assert len(once.launches_ms) == 1 and len(many.launches_ms) == 5
+    assert many.kernel_ms == pytest.approx(float(np.median(many.launches_ms)))
+    assert all(ms > 0 for ms in many.launches_ms)
+    assert np.array_equal(once.tri, many.tri) and np.array_equal(once.t, many.t)
+
+
+def test_ray_buffers_are_reused_for_the_same_count_only(backend, small_scene):
+    o, d = camera_rays(small_scene.camera)
+    trace(small_scene, o, d, backend)
+    first = ray_buffers(backend, len(o))
+    assert ray_buffers(backend, len(o)) is first
+    # a second batch of the same size overwrites the buffers: its own hits, not the first batch's
+    shifted = trace(small_scene, o[::-1].copy(), d[::-1].copy(), backend)
+    ref = reference_trace(small_scene.vertices, small_scene.faces, o[::-1], d[::-1])
+    cmp = compare_hits(ref, shifted.tri, shifted.t, small_scene.vertices, small_scene.faces, o[::-1], d[::-1])
+    assert cmp.n_mismatch == 0, cmp.summary()
+    half = len(o) // 2
+    part = trace(small_scene, o[:half], d[:half], backend)
+    assert len(part.tri) == half and ray_buffers(backend, half) is not first
+
+
+@pytest.mark.parametrize("variant", [Variant(traversal="bvh", block=(8, 16)), Variant(block=(32, 4)),
+                                     Variant(traversal="bvh", block=(8, 8), ray_order="morton")],
+                         ids=lambda v: v.label())
+def test_image_shaped_launch_gives_the_same_hits(backend, small_scene, variant):
+    """trace(width=) takes the rays in tiles of the block (a warp traces neighbours), hits unchanged;
+    an image whose sides are not multiples of the block included."""
+    scene = rtlab.load_scene("default", size=8)
+    scene.camera = small_scene.camera.with_size(37, 21)
+    o, d = camera_rays(scene.camera)
+    plain = trace(scene, o, d, backend, variant)
+    grid = trace(scene, o, d, backend, variant, width=37)
+    assert np.array_equal(plain.tri, grid.tri) and np.array_equal(plain.t, grid.t)
+    with pytest.raises(rtlab.RtlabError, match="rows"):
+        trace(scene, o, d, backend, variant, width=36)
+
+
+def _diffuse_ray_by_the_readme(p_hit, n, incoming, u1, u2, diagonal):
+    """One bounce ray, written out from ../shared/bench/README.md's text, scalar by scalar."""
+    n = np.asarray(n, float) / math.sqrt(float(np.dot(n, n)))
+    if float(np.dot(n, incoming)) > 0:
+        n = -n
+    origin = np.asarray(p_hit, float) + n * 1e-4 * diagonal
+    r, phi = math.sqrt(u1), 2 * math.pi * u2
+    a = np.array([0.0, 1.0, 0.0]) if abs(n[0]) > 0.9 else np.array([1.0, 0.0, 0.0])
+    t1 = np.cross(n, a)
+    t1 /= math.sqrt(float(np.dot(t1, t1)))
+    t2 = np.cross(n, t1)
+    d = t1 * r * math.cos(phi) + t2 * r * math.sin(phi) + n * math.sqrt(1 - u1)
+    return origin, d
+
+
+def test_diffuse_rays_follow_the_benchmark_recipe(small_scene):
+    o, d = camera_rays(small_scene.camera)
+    ref = reference_trace(small_scene.vertices, small_scene.faces, o, d)
+    o2, d2 = diffuse_rays(small_scene, o, d, ref.t, ref.tri)
+    hits = np.flatnonzero(ref.tri >= 0)
+    assert len(o2) == len(hits) > 0
+    rng = np.random.default_rng(1)
+    u1, u2 = rng.random(len(hits)), rng.random(len(hits))
+    lo, hi = small_scene.bounds().astype(float)
+    diagonal = float(np.linalg.norm(hi - lo))
+    v = small_scene.vertices.astype(float)
+    for k in (0, 1, len(hits) // 2, len(hits) - 1):
+        i = hits[k]
+        a, b, c = v[small_scene.faces[ref.tri[i]]]
+        p = o[i].astype(float) + d[i].astype(float) * float(ref.t[i])
+        want_o, want_d = _diffuse_ray_by_the_readme(p, np.cross(b - a, c - a), d[i], u1[k], u2[k], diagonal)
+        assert np.allclose(o2[k], want_o, rtol=1e-6, atol=1e-6 * diagonal)
+        assert np.allclose(d2[k], want_d, atol=1e-6)
+        assert abs(float(np.linalg.norm(d2[k])) - 1.0) < 1e-5
+
+
+def test_bench_batch_checks_an_even_subsample(tmp_path):
+    require_scene_file("bunny.ply")
+    batch = make_rays("bunny/far", "primary", 64, check_rays=1000)
+    assert batch.n == 64 * 64
+    assert len(batch.check_index) <= 1000 and batch.check_index[0] == 0
+    assert np.all(np.diff(batch.check_index) == batch.check_index[1])
+    peers = peer_figures()
+    assert peers[("bunny/far", "primary", 1024)]["best"] == max(peers[("bunny/far", "primary", 1024)]["warp"],
+                                                                 peers[("bunny/far", "primary", 1024)]["optix"])
+
+
+@pytest.mark.gpu
+def test_cuda_launch_time_leaves_out_the_host():
+    """A kernel of a few microseconds: the events bracket the kernel, not pycuda's launch overhead
+    (before issue 12 that overhead, ~25 us, was inside every CUDA time)."""
+    from rtlab.backends import get_backend
+    try:
+        be = get_backend("cuda")
+    except Exception as e:
+        pytest.skip(f"no CUDA: {e}")
+    scene = rtlab.load_scene("default", size=16)
+    o, d = camera_rays(scene.camera)
+    r = trace(scene, o, d, be, Variant(traversal="bvh"), repeats=20, warmup=3)
+    assert r.kernel_ms < 0.015, f"a 256-ray trace took {r.kernel_ms * 1e3:.1f} us of device time"
