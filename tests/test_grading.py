@@ -730,8 +730,7 @@ def test_lab00_from_the_release_reaches_full_marks(release, tmp_path):
     assert "calls traverse_kd_restart, still a stub" in out and "camera_ray," not in out, out
     # The course's rtlab rendering the student's tree (--kernels)
     r = rtlab("render", "default", "--size", 16, "--out", tmp_path / "r.png", "--traversal", "ropes",
-              "--kernels", mine, PYTHONPATH=str(PROJECT_DIR))      # the default test (watertight) is lab 02's
-    assert "calls intersect_ray_tri_watertight, traverse_kd_ropes, still" in " ".join(r.stdout.split()), r.stdout
+              "--kernels", mine, PYTHONPATH=str(PROJECT_DIR))
     out = " ".join(r.stdout.split())
     assert r.returncode == 0 and f"kernel tree: {mine} (from --kernels)" in out
     assert "calls traverse_kd_ropes, still a stub" in out, out
