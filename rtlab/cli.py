@@ -139,7 +139,10 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
            compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels"),
            schedule: str = typer.Option("tree", help="with --bounces: tree (the paper's depth-first kernel "
-                                        "tree) or wavefront (one launch per level)")):
+                                        "tree) or wavefront (one launch per level)"),
+           kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (a copy of "
+                                                  "kernels/ with your work; default $RTLAB_KERNEL_DIR or the "
+                                                  "installation's)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
     from .rendering import render as do_render, save_png
@@ -149,6 +152,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     be = get_backend(backend, device)
     chosen = {"traversal": traversal, "intersection": isect, "block": _block_shape(block) if block else None}
     variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
+    _use_kernels(kernels, variant, whitted=shadows is not None or bounces is not None)
     sc = _load_scene(scene, size)
     _tree(sc)
     if shadows is not None or bounces is not None:
@@ -175,6 +179,23 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: the paper's tables on the current device.")
 app.add_typer(bench_app, name="bench")
+
+
+def _use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
+    """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
+    still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
+    from .kernels import use_kernel_dir
+    from .labs.trees import kernel_tree_summary
+    if kernels is not None:
+        use_kernel_dir(kernels)
+    console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)
+
+
+@bench_app.callback()
+def bench_options(kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (default "
+                                                         "$RTLAB_KERNEL_DIR or the installation's)")):
+    """Benchmarks: the paper's tables on the current device (rtlab bench --kernels DIR SECTION ...)."""
+    _use_kernels(kernels)
 
 
 def _bench_scenes(scenes: str, views: str, size: int):

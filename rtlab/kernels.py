@@ -58,6 +58,30 @@ def unpaired_steps() -> dict[str, list[str]]:
     return {"cuda_only": sorted(cu - cl), "opencl_only": sorted(cl - cu)}
 
 
+def use_kernel_dir(root) -> Path:
+    """Compile from the kernel tree at ``root`` (shared/, cuda/, opencl/) from now on in this process
+    (``rtlab render --kernels DIR``, the grader's reference); returns the tree used before."""
+    global KERNEL_DIR
+    root = Path(root).expanduser().resolve()
+    if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
+        raise VariantError(f"{root} is not a kernel tree: it needs shared/ and opencl/ or cuda/ "
+                           f"(a copy of the project's kernels/ folder)")
+    previous, KERNEL_DIR = KERNEL_DIR, root
+    return previous
+
+
+def include_dirs(source) -> list[Path]:
+    """Where a kernel source's quoted includes are searched after its own folder: the shared headers
+    of the tree it belongs to (kernels/opencl/x.cl -> kernels/shared), then the current tree's (the
+    grader's harness kernels live outside any tree)."""
+    own = Path(source).resolve().parent.parent / "shared"
+    dirs = [own] if own.is_dir() else []
+    current = KERNEL_DIR / "shared"
+    if current not in dirs:
+        dirs.append(current)
+    return dirs
+
+
 def kernel_source(step: str, language: str) -> Path:
     ext = {"cuda": ".cu", "opencl": ".cl"}[language]
     path = KERNEL_DIR / language / f"{step}{ext}"

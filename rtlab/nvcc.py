@@ -13,7 +13,11 @@ from .backends.base import KernelResources
 from .errors import KernelBuildError
 from .kernels import CUDA_PRECISION_OPTIONS
 from .occupancy import SM90, cuda_occupancy
-from .paths import SHARED_KERNEL_DIR
+
+
+def _includes(path) -> list[str]:
+    from .kernels import include_dirs
+    return [f"-I{d}" for d in include_dirs(path)]
 
 
 def nvcc_available() -> bool:
@@ -26,7 +30,7 @@ def nvcc_resources(path: Path, defines: dict, arch: str = "sm_90", block_threads
     if not nvcc_available():
         raise KernelBuildError("nvcc not found on PATH: the offline CUDA report needs the CUDA toolkit")
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = ["nvcc", "-cubin", f"-arch={arch}", "-Xptxas", "-v", f"-I{SHARED_KERNEL_DIR}",
+        cmd = ["nvcc", "-cubin", f"-arch={arch}", "-Xptxas", "-v", *_includes(path),
                *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
                "-o", str(Path(tmp) / "k.cubin"), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -42,7 +46,7 @@ def nvcc_ptx(path: Path, defines: dict, arch: str = "sm_90", extra_options: tupl
         raise KernelBuildError("nvcc not found on PATH: the offline CUDA report needs the CUDA toolkit")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "k.ptx"
-        cmd = ["nvcc", "-ptx", f"-arch={arch}", f"-I{SHARED_KERNEL_DIR}",
+        cmd = ["nvcc", "-ptx", f"-arch={arch}", *_includes(path),
                *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, *extra_options,
                "-o", str(out), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)

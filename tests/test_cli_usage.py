@@ -35,9 +35,11 @@ CHEAP_FORMS = {
     ("bench", "launch"): ("bench launch --scene default --size 32 --repeats 1 --figures 4 --blocks 32x4 "
                           "--orders rows --out {tmp}/launch"),
     ("bench", "paper"): "bench paper --scenes default --sections table2 --size 32 --repeats 1 --out {tmp}/paper",
+    ("bench", "rays"): "bench rays --views bunny/far --kind primary,diffuse --sizes 32 --repeats 1 --traversals bvh",
     ("inspect",): "inspect --depth 2 --size 32 --pixel 16 16 --screenshot {tmp}/inspect.png",
     ("lab", "list"): "lab list",
     ("lab", "template"): "lab template 03_traversal --out {tmp}/my-work",
+    ("lab", "release"): "lab release {tmp}/student",
     ("grade",): "grade 03_traversal {tmp}/my-work --format table --tests compile",
 }
 SLOW = {("bench", "shading"), ("bench", "memory"), ("inspect",)}

@@ -127,3 +127,13 @@ class Backend(ABC):
 
     def describe(self) -> str:
         return f"{self.name}: {self.device_name} ({self.platform_name})"
+
+
+def read_source(path) -> str:
+    """A kernel source as text: UTF-8, or byte for byte as Latin-1 when it is not (a student's
+    accented comment must not stop the build)."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")

@@ -12,8 +12,7 @@ import numpy as np
 
 from ..errors import BackendError, KernelBuildError
 from ..occupancy import SmLimits, cuda_occupancy
-from ..paths import SHARED_KERNEL_DIR
-from .base import Backend, KernelResources, Program, Texture, round_up
+from .base import Backend, KernelResources, Program, Texture, read_source, round_up
 
 
 def _pycuda():
@@ -201,16 +200,16 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        from ..kernels import CUDA_PRECISION_OPTIONS
+        from ..kernels import CUDA_PRECISION_OPTIONS, include_dirs
         options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
-        key = (str(path), tuple(sorted(defines.items())), options)
+        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), options)
         if key in self._programs:
             return self._programs[key]
-        text = Path(path).read_text()
+        text = read_source(path)
         source = f'#line 1 "{path}"\n{text}'
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)
         try:
-            module = SourceModule(source, options=flags, include_dirs=[str(SHARED_KERNEL_DIR), str(Path(path).parent)],
+            module = SourceModule(source, options=flags, include_dirs=[*(str(d) for d in include_dirs(path)), str(Path(path).parent)],
                                   no_extern_c=True, arch=self.arch)
         except drv.CompileError as e:
             from .opencl import format_build_error

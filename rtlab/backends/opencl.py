@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BackendError, KernelBuildError
-from ..paths import SHARED_KERNEL_DIR
-from .base import Backend, KernelResources, Program, Texture, round_up
+from .base import Backend, KernelResources, Program, Texture, read_source, round_up
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
              "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
@@ -167,14 +166,16 @@ class OpenCLBackend(Backend):
         return SM90
 
     def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> OpenCLProgram:
+        from ..kernels import include_dirs
         cl = _cl()
-        key = (str(path), tuple(sorted(defines.items())), tuple(options))
+        # the include folders are part of the key: the harness kernels compile against any tree
+        key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
-        text = Path(path).read_text()
+        text = read_source(path)
         # '#line' makes compiler messages name the real file instead of '<source>'
         source = f'#line 1 "{path}"\n{text}'
-        flags = [f"-I{SHARED_KERNEL_DIR}", f"-I{Path(path).parent}"]
+        flags = [*(f"-I{d}" for d in include_dirs(path)), f"-I{Path(path).parent}"]
         flags += [f"-D{k}={v}" for k, v in sorted(defines.items())]
         flags += list(options)
         if self.is_nvidia():

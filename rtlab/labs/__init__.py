@@ -1,15 +1,17 @@
 """The course around rtlab: lab steps (``labs/<step>/``), templates generated from the reference
 kernels, and the autograder.
 
-    from rtlab.labs import grade, load_config, write_template
-    write_template("00_primary")                       # labs/00_primary/template/...
+    from rtlab.labs import grade, load_config, write_template, write_release
+    write_template("00_primary", "my00")               # my00/kernels/shared/...
     report = grade("00_primary", "submission/")        # each test in its own process, PoCL
+    write_release("student-release")                  # what students get: no solutions
 """
 from .config import LabConfig, TestSpec, lab_names, load_config
 from .grader import GradeReport, TestResult, grade
 from .regions import LabError, find_regions, splice_regions, strip_regions, stubbed_functions
-from .template import stale_template_files, template_files, write_template
+from .release import write_release
+from .template import template_files, write_template
 
 __all__ = ["LabConfig", "TestSpec", "lab_names", "load_config", "GradeReport", "TestResult", "grade",
            "LabError", "find_regions", "splice_regions", "strip_regions", "stubbed_functions",
-           "stale_template_files", "template_files", "write_template"]
+           "template_files", "write_template", "write_release"]

@@ -1,14 +1,22 @@
 """A Gradescope autograder for one lab step: ``rtlab grade --bundle STEP --out DIR``.
 
 DIR (and DIR/autograder.zip, what Gradescope takes) holds rtlab itself (pyproject, rtlab/,
-kernels/, labs/), the scene files the step's tests load, and Gradescope's two scripts:
-``setup.sh`` (run once when the image is built: PoCL from apt, Python >= 3.11, rtlab in a venv,
-then a self-check that grades the reference, which also warms the kd-tree and kernel caches) and
-``run_autograder`` (per submission: grades /autograder/submission, writes
-/autograder/results/results.json, and writes one even when the grader cannot start).
+kernels/, labs/), the scene files the step's tests load, a ``grading-secret`` (drawn for this
+bundle: the seed of the rays of the tests hidden until the due date), AUTOGRADER.md for the instructor
+and Gradescope's two scripts:
+
+* ``setup.sh`` (run once when the image is built: PoCL from apt, Python >= 3.11, rtlab in a venv,
+  then a self-check that grades the reference with the bundle's secret and fails the build unless
+  it scores full marks; it also warms the kd-tree and kernel caches);
+* ``run_autograder`` (per submission: grades /autograder/submission, writes
+  /autograder/results/results.json after every test, and one even when the grader cannot start).
+
+Both take the Gradescope root from ``$AUTOGRADER_ROOT`` (default /autograder) and the venv from
+``$RTLAB_VENV`` (default /opt/rtlab), so the layout can be simulated elsewhere.
 """
 from __future__ import annotations
 
+import secrets
 import shutil
 import stat
 import zipfile
@@ -19,12 +27,15 @@ from .config import load_config
 from .regions import LabError
 
 VENV = "/opt/rtlab"
-SOURCE = "/autograder/source"
+ROOT = "/autograder"
 
 SETUP_SH = """#!/usr/bin/env bash
 # Gradescope runs this once, as root, when it builds the autograder image (Ubuntu). Written by
 # `rtlab grade --bundle {step}`.
 set -euo pipefail
+ROOT="${{AUTOGRADER_ROOT:-{root}}}"
+VENV="${{RTLAB_VENV:-{venv}}}"
+SOURCE="$ROOT/source"
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -qq
 # PoCL: OpenCL on the CPU, where the grader runs every test
@@ -38,35 +49,74 @@ if [ -z "$PY" ]; then
   apt-get install -y -qq --no-install-recommends python3.11 python3.11-venv
   PY=$(command -v python3.11)
 fi
-"$PY" -m venv {venv}
-{venv}/bin/pip install -q --upgrade pip
-{venv}/bin/pip install -q -e {source}
+"$PY" -m venv "$VENV"
+"$VENV/bin/pip" install -q --upgrade pip
+"$VENV/bin/pip" install -q -e "$SOURCE"
 # No OpenCL platform from apt (an old image)? PoCL from PyPI instead
-{venv}/bin/python -c 'import pyopencl as cl; assert cl.get_platforms()' 2>/dev/null || \\
-  {{ apt-get install -y -qq --no-install-recommends build-essential; {venv}/bin/pip install -q pocl-binary-distribution; }}
-# Self-check: grade the reference solution (also builds the kd-trees and fills the caches)
-export RTLAB_SCENES={source}/scenes RTLAB_CACHE=/autograder/cache
-{venv}/bin/rtlab info
-{venv}/bin/rtlab grade {step} {source} --backend opencl --format table --out /autograder/cache/self-check.json
+"$VENV/bin/python" -c 'import pyopencl as cl; assert cl.get_platforms()' 2>/dev/null || \\
+  {{ apt-get install -y -qq --no-install-recommends build-essential; "$VENV/bin/pip" install -q pocl-binary-distribution; }}
+# Self-check: the reference must score full marks with this bundle's secret (it also builds the
+# kd-trees and fills the caches). Anything less fails the image build: do not grade with it.
+export RTLAB_SCENES="$SOURCE/scenes" RTLAB_CACHE="$ROOT/cache"
+mkdir -p "$ROOT/cache"
+"$VENV/bin/rtlab" info
+# One retry: the reference's speed against itself can pass 1.25x on a builder loaded by other work.
+self_check() {{
+  "$VENV/bin/rtlab" grade {step} "$SOURCE" --backend opencl --format table --secret-file "$SOURCE/grading-secret" \\
+      --out "$ROOT/cache/self-check.json" --require-full-marks
+}}
+self_check || self_check
 """
 
 RUN_AUTOGRADER = """#!/usr/bin/env bash
 # Gradescope runs this for every submission (files in /autograder/submission). Written by
-# `rtlab grade --bundle {step}`. The grader writes results.json even when a test crashes or hangs;
-# the fallback below covers a grader that cannot start at all.
-export RTLAB_SCENES={source}/scenes RTLAB_CACHE=/autograder/cache RTLAB_BACKEND=opencl
-mkdir -p /autograder/results
-cd {source}
-{venv}/bin/rtlab grade {step} /autograder/submission --backend opencl --format gradescope \\
-    --out /autograder/results/results.json
+# `rtlab grade --bundle {step}`. The grader writes results.json after every test (a run stopped
+# from outside still reports) and even when a test crashes or hangs; the fallback below covers a
+# grader that cannot start at all.
+ROOT="${{AUTOGRADER_ROOT:-{root}}}"
+VENV="${{RTLAB_VENV:-{venv}}}"
+SOURCE="$ROOT/source"
+export RTLAB_SCENES="$SOURCE/scenes" RTLAB_CACHE="$ROOT/cache" RTLAB_BACKEND=opencl
+mkdir -p "$ROOT/results"
+cd "$SOURCE"
+"$VENV/bin/rtlab" grade {step} "$ROOT/submission" --backend opencl --format gradescope \\
+    --secret-file "$SOURCE/grading-secret" --out "$ROOT/results/results.json"
 status=$?
-if [ ! -s /autograder/results/results.json ]; then
+if [ ! -s "$ROOT/results/results.json" ]; then
   printf '{{"score": 0, "output": "The autograder could not start (exit status %s). This is not your code: please tell the course staff.", "tests": []}}\\n' "$status" \\
-    > /autograder/results/results.json
+    > "$ROOT/results/results.json"
 fi
 """
 
+# Measured on the course's lab machine (2 CPU cores shared with other work, load ~4, PoCL 3.1,
+# caches warm as after setup.sh): `rtlab grade STEP .` of the reference, seconds for one submission.
+MEASURED_SECONDS = {"00_primary": 19, "01_memory": 21, "02_intersect": 22, "03_traversal": 25,
+                    "04_shadows": 14, "05_kernel_tree": 22}
+
+README = """# Gradescope autograder for rtlab lab {step}
+
+Written by `rtlab grade --bundle {step}` from the course's repository (the reference). Upload
+`autograder.zip` as the assignment's autograder (Ubuntu 22.04 base image or newer).
+
+What it needs (set these in the assignment's autograder settings):
+- **Memory:** each test runs in its own process capped at {memory} MB (grading.toml
+  `memory_limit_mb`; the reference's test processes peak at 400-560 MB), and up to {jobs_hint} of them run at once beside
+  the grading process (about 1 GB: scenes, fixtures). With one CPU, 3 GB is enough; with N CPUs,
+  N x {memory} MB + 1 GB. The grader starts no more tests at once than the memory it sees allows.
+- **Time:** one grading takes about {seconds} s on 2 CPU cores (more on a loaded machine; the
+  first submission after the image build pays no compile or kd-tree build: setup.sh warmed the
+  caches). Every test has its own limits (a setup limit of {setup:g} s per kernel compile, a run
+  limit per test) and the whole run stops at {deadline:g} s (grading.toml `deadline`; Gradescope's
+  own default limit is 600 s): what is not done by then scores 0 with a message.
+- `setup.sh` grades the reference solution with this bundle's secret and fails the image build if
+  it scores less than full marks.
+
+The tests hidden until the due date draw their rays from `grading-secret`, drawn for this bundle:
+make a new bundle each term. Students get `rtlab lab release` (no solutions, visible tests only).
+"""
+
 PROJECT_ITEMS = ("pyproject.toml", "README.md", "rtlab", "kernels", "labs")
+SECRET_FILE = "grading-secret"
 
 
 def scene_files(step: str) -> list[tuple[str, Path]]:
@@ -88,10 +138,14 @@ def scene_files(step: str) -> list[tuple[str, Path]]:
 
 def write_bundle(step: str, out: Path | None = None) -> Path:
     """Write the autograder folder and its zip; returns the zip's path."""
-    load_config(step)
+    from .trees import has_reference
+    config = load_config(step)
     if not IN_CHECKOUT:
-        raise LabError("rtlab grade --bundle copies rtlab's sources: run it from a checkout (or a student "
-                       "release) of rtlab, not an installed wheel")
+        raise LabError("rtlab grade --bundle copies rtlab's sources: run it from a checkout of rtlab (the "
+                       "course's repository), not an installed wheel")
+    if not has_reference():
+        raise LabError("this installation's kernels hold template stubs, not the reference (a student "
+                       "release?): make the autograder from the course's repository")
     out = Path(out or f"autograder-{step}")
     if out.exists():
         shutil.rmtree(out)
@@ -100,18 +154,22 @@ def write_bundle(step: str, out: Path | None = None) -> Path:
     for item in PROJECT_ITEMS:
         src = PROJECT_DIR / item
         if src.is_dir():
-            shutil.copytree(src, out / item, ignore=ignore if item != "labs" else shutil.ignore_patterns("__pycache__"))
+            shutil.copytree(src, out / item, ignore=ignore)
         elif src.is_file():
             shutil.copy2(src, out / item)
     for rel, path in scene_files(step):
         dst = out / "scenes" / rel
         dst.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(path, dst)
-    fmt = {"step": step, "venv": VENV, "source": SOURCE}
+    (out / SECRET_FILE).write_text(secrets.token_hex(32) + "\n")
+    fmt = {"step": step, "venv": VENV, "root": ROOT}
     for name, text in (("setup.sh", SETUP_SH), ("run_autograder", RUN_AUTOGRADER)):
         p = out / name
         p.write_text(text.format(**fmt))
         p.chmod(p.stat().st_mode | stat.S_IXUSR | stat.S_IXGRP | stat.S_IXOTH)
+    (out / "AUTOGRADER.md").write_text(README.format(
+        step=step, memory=config.memory_limit_mb, setup=config.setup_limit, deadline=config.deadline,
+        seconds=MEASURED_SECONDS.get(step, 60), jobs_hint="one per CPU"))
     zpath = out / "autograder.zip"
     with zipfile.ZipFile(zpath, "w", zipfile.ZIP_DEFLATED) as z:
         for f in sorted(out.rglob("*")):

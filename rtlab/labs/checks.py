@@ -18,6 +18,12 @@ from pathlib import Path
 import numpy as np
 
 HARNESS_DIR = Path(__file__).resolve().parent / "harness"
+SETUP_TICK = None    # set in a test process (run_test): called before each compile the backend does not see
+
+
+def _tick() -> None:
+    if SETUP_TICK is not None:
+        SETUP_TICK()
 
 
 @dataclass
@@ -371,6 +377,18 @@ class RenderKind(Kind):
         return Outcome(1.0 if ok and img_ok else 0.0, msg + img_msg,
                        {"mismatches": cmp_.n_mismatch, "pixels": cmp_.n_rays, "psnr": psnr})
 
+    def agree(self, state, got, want) -> tuple[bool, str]:
+        """Whether a render matches the reference kernel's render of the same view (speed tests)."""
+        spec, fx = state[0], state[1]
+        scene = fx["scene"]
+        ok, why = hits_agree(got.hits.tri, got.hits.t, want.hits.tri, want.hits.t, want.hits.u, want.hits.v, scene,
+                             scene.faces, scene.camera, spec.tolerance, _pixel_namer(scene.camera.width))
+        if not ok:
+            return ok, why
+        img_ok, img_msg, _ = describe_image_error(got.image, want.image, spec.tolerance["min_psnr"],
+                                                  "the reference kernel's image")
+        return img_ok, img_msg.strip()
+
     def run(self, state):
         return self.check(state, self.render(state))
 
@@ -445,6 +463,13 @@ class IntersectLoopKind(Kind):
                                       _pixel_namer(scene.camera.width))
         return Outcome(1.0 if ok else 0.0, f"{result.isect}, {result.n_tris} triangles in a loop: {msg}",
                        {"mismatches": cmp_.n_mismatch, "pixels": cmp_.n_rays})
+
+    def agree(self, state, got, want) -> tuple[bool, str]:
+        spec, fx = state[0], state[1]
+        scene = fx["scene"]
+        nan = np.full(len(want.tri), np.nan)     # the loop keeps no barycentrics: ties by equal t only
+        return hits_agree(got.tri, got.t, want.tri, want.t, nan, nan, scene, scene.faces[:want.n_tris],
+                          scene.camera, spec.tolerance, _pixel_namer(scene.camera.width))
 
     def run(self, state):
         return self.check(state, self.render(state))
@@ -528,6 +553,25 @@ class WhittedKind(Kind):
             return Outcome(0.0, "\n".join(problems), data)
         return Outcome(1.0, f"{err.summary()}", data)
 
+    def agree(self, state, got, want) -> tuple[bool, str]:
+        from types import SimpleNamespace
+        from ..reference.whitted import whitted_error
+        tol = state[0].tolerance
+
+        def tree_of(result):
+            return result.tree if result.tree is not None else {"P": result.hits.tri}
+
+        err = whitted_error(got.image, tree_of(got), SimpleNamespace(image=want.image, tree=tree_of(want)))
+        problems = []
+        if err.tree_pixels > tol["tree_fraction"] * err.pixels:
+            problems.append(f"{err.tree_pixels} of {err.pixels} pixels trace another ray tree than the reference kernel")
+        if err.color_max_same_tree > tol["color_max"]:
+            problems.append(f"where the ray trees agree, colours differ by up to {err.color_max_same_tree}/255 "
+                            f"(allowed {tol['color_max']}/255)")
+        if not err.psnr >= tol["min_psnr"]:
+            problems.append(f"image PSNR {err.psnr:.1f} dB against the reference kernel's, needs {tol['min_psnr']:.0f} dB")
+        return not problems, "\n".join(problems)
+
     def run(self, state):
         return self.check(state, self.render(state))
 
@@ -540,18 +584,24 @@ def describe_node(node: str) -> str:
 class SpeedKind(Kind):
     """Time against the reference kernel on the same device in the same process (after Stanford
     CS149's checker: relative to a reference on the same machine, never fixed times). ``of`` names
-    the kind whose work is timed (render, intersect_loop, whitted). Launches of the reference and
-    the submission alternate in pairs (``warmup`` pairs untimed, then ``repeats``), so both see the
-    same machine load; the score uses the median of the pairs' time ratios, which a busy machine
-    (graders share cores) disturbs far less than the ratio of the two best times, reported beside
-    it. Full points up to ``full_ratio``, none from ``zero_ratio``, linear in between. Only a
-    correct result is timed."""
+    the kind whose work is timed (render, intersect_loop, whitted).
+
+    Only a correct result is timed (the float64 check of the base kind, first). Then ``warmup`` + ``repeats``
+    pairs of launches, reference and submission in an order drawn at random for each pair, each
+    launch on its own camera (the view moved a little at random) with output buffers that start as
+    random bytes, and each scene uploaded separately for the two. Every launch's output is compared
+    with the reference kernel's on the same camera: a kernel that notices it is being timed (counts
+    its launches, keeps results between them) cannot return early or replay an answer. The score
+    uses the median of the pairs' time ratios, which a busy machine (graders share cores) disturbs
+    far less than the ratio of the two best times, reported beside it. Full points up to
+    ``full_ratio``, none from ``zero_ratio``, linear in between."""
     name = "speed"
     timed = True
     params = {"of": "render", "repeats": 15, "warmup": 2, **RenderKind.params, **IntersectLoopKind.params,
               **WhittedKind.params}
     tolerance = {**RenderKind.tolerance, **IntersectLoopKind.tolerance, **WhittedKind.tolerance,
                  "full_ratio": 1.25, "zero_ratio": 3.0}
+    camera_jitter = 0.02     # of the eye-target distance, for eye and target
 
     def base(self, spec) -> Kind:
         from ..errors import RtlabError
@@ -564,55 +614,115 @@ class SpeedKind(Kind):
         return self.base(spec).prepare(spec, scene)
 
     def setup(self, spec, fixture, backend):
+        import random
         base = self.base(spec)
+        rng = np.random.default_rng(random.SystemRandom().getrandbits(64))
+        ref_backend, sub_backend = FreshOutputs(backend, rng), FreshOutputs(backend, rng)
         with use_kernel_tree(fixture["reference_tree"]):
-            base.setup(spec, fixture, backend)
-        return base, base.setup(spec, fixture, backend)
+            ref_state = base.setup(spec, fixture, ref_backend)
+        return base, ref_state, base.setup(spec, fixture, sub_backend), rng
 
-    def time_once(self, base, state, who: str) -> float:
+    def launch(self, base, state, who: str):
         if who == "reference":
             with use_kernel_tree(state[1]["reference_tree"]):
-                return base.time_of(base.render(state))
-        return base.time_of(base.render(state))
+                return base.render(state)
+        return base.render(state)
 
     def run(self, state):
-        base, state = state
-        spec = state[0]
+        import random
+        base, ref_state, state, rng = state
+        spec, fx = state[0], state[1]
         checked = base.check(state, base.render(state))
         if checked.fraction < 1.0:
             return Outcome(0.0, "not timed: the result is not correct\n" + checked.output, {"correct": False})
         warmup, repeats = int(spec.params["warmup"]), int(spec.params["repeats"])
+        coin = random.SystemRandom()
+        scene = fx["scene"]
+        camera = scene.camera
         ref, sub = [], []
-        for k in range(warmup + repeats):
-            # alternate which goes first, so neither always runs on the other's warm caches
-            order = ("reference", "submission") if k % 2 == 0 else ("submission", "reference")
-            ms = {who: self.time_once(base, state, who) for who in order}
-            if k >= warmup:
-                ref.append(ms["reference"])
-                sub.append(ms["submission"])
+        try:
+            for k in range(warmup + repeats):
+                scene.camera = jitter_camera(camera, rng, self.camera_jitter)
+                order = ("reference", "submission") if coin.random() < 0.5 else ("submission", "reference")
+                results = {who: self.launch(base, ref_state if who == "reference" else state, who) for who in order}
+                ok, why = base.agree(state, results["submission"], results["reference"])
+                if not ok:
+                    return Outcome(0.0, f"timed launch {k + 1} of {warmup + repeats} (each on its own camera, output "
+                                        f"buffers filled with random bytes first) does not match the reference "
+                                        f"kernel's output on the same rays:\n{why}\nevery timed launch is checked",
+                                   {"correct": False, "launch": k + 1})
+                if k >= warmup:
+                    ref.append(base.time_of(results["reference"]))
+                    sub.append(base.time_of(results["submission"]))
+        finally:
+            scene.camera = camera
         ref, sub = np.array(ref), np.array(sub)
         ratio = float(np.median(sub / ref))
         fraction, msg = speed_score(ratio, spec.tolerance)
         msg = (f"{np.median(sub):.3f} ms (best {sub.min():.3f}), reference {np.median(ref):.3f} ms "
-               f"(best {ref.min():.3f}), alternating on the same device: {msg}")
+               f"(best {ref.min():.3f}), {warmup + repeats} pairs in random order on the same device, every "
+               f"launch checked: {msg}")
         return Outcome(fraction, msg, {"correct": True, "best_ms": float(sub.min()), "reference_ms": float(ref.min()),
                                        "median_ms": float(np.median(sub)),
                                        "reference_median_ms": float(np.median(ref)), "ratio": ratio})
 
 
+def jitter_camera(camera, rng, amount: float):
+    """The camera with eye and target moved at random by about ``amount`` of their distance."""
+    from ..scene.model import Camera
+    eye, target = np.asarray(camera.eye, np.float64), np.asarray(camera.target, np.float64)
+    dist = float(np.linalg.norm(target - eye))
+    eye = eye + rng.normal(size=3) * amount * dist
+    target = target + rng.normal(size=3) * amount * dist
+    return Camera(tuple(float(x) for x in eye), tuple(float(x) for x in target), camera.up, camera.fov_deg,
+                  camera.width, camera.height)
+
+
+class FreshOutputs:
+    """A backend whose every new buffer starts as random bytes (a kernel that skips its work leaves
+    noise, never an earlier answer), and which gets its own scene uploads (device scenes are kept per
+    backend object): the reference and the submission share no buffer."""
+
+    def __init__(self, backend, rng):
+        self._backend = backend
+        self._rng = rng
+
+    def __getattr__(self, name):
+        return getattr(self._backend, name)
+
+    def empty(self, nbytes):
+        buf = self._backend.empty(nbytes)
+        self._backend.fill(buf, self._rng.integers(0, 256, max(int(nbytes), 4), dtype=np.uint8))
+        return buf
+
+
+def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camera, tol, where_of) -> tuple[bool, str]:
+    """Whether a kernel's hits of a camera's rays match the reference kernel's on the same rays (same
+    device), by the rules of the float64 check (rtlab.reference.compare_hits) with the reference
+    kernel's answers in the float64 reference's place: the same triangle at the same t, or another one
+    the ray cannot tell from it (a shared edge, a graze)."""
+    from ..reference import compare_hits
+    from ..reference.tracer import RefHits
+    from ..tracing import camera_rays
+    ref_tri = np.asarray(ref_tri).astype(np.int64)
+    hit = ref_tri >= 0
+    ref = RefHits(np.where(hit, np.asarray(ref_t, np.float64), np.inf), np.where(hit, ref_tri, -1),
+                  np.where(hit, np.asarray(ref_u, np.float64), np.nan), np.where(hit, np.asarray(ref_v, np.float64), np.nan))
+    o, d = camera_rays(camera)
+    cmp_ = compare_hits(ref, got_tri, got_t, scene.vertices, faces, o, d)
+    return describe_hit_errors(cmp_, ref, got_tri, got_t, tol, where_of)
+
+
 class use_kernel_tree:
     """Compile from another kernel tree in this process (the reference, beside the submission that
-    $RTLAB_KERNEL_DIR names). The tree's top-level kernels must include the shared headers by
-    absolute path (the grader writes them so): the backends put $RTLAB_KERNEL_DIR/shared first on
-    the include path, and a header's own includes are found beside it."""
+    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.kernels.include_dirs)."""
 
     def __init__(self, root):
         self.root = Path(root)
 
     def __enter__(self):
         from .. import kernels
-        self.saved = kernels.KERNEL_DIR
-        kernels.KERNEL_DIR = self.root
+        self.saved = kernels.use_kernel_dir(self.root)
         return self
 
     def __exit__(self, *exc):
@@ -793,8 +903,10 @@ class NvccKind(Kind):
         path = kernel_source(spec.params["kernel"] or fixture["step"], "cuda")
         options = build_options(variant, "cuda")
         arch = spec.params["arch"]
+        _tick()
         resources = nvcc_resources(path, defines, arch=arch, block_threads=variant.block[0] * variant.block[1],
                                    extra_options=options)
+        _tick()
         return spec, variant, path, resources, nvcc_ptx(path, defines, arch=arch, extra_options=options)
 
     def run(self, state):

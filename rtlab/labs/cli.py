@@ -1,7 +1,8 @@
 """Course commands, registered on the main ``rtlab`` app by rtlab/cli.py:
 
-    rtlab lab list | template STEP [--out DIR]
+    rtlab lab list | template STEP [--out DIR] | release OUT
     rtlab grade STEP SUBMISSION_DIR [--format gradescope|json|table] [--backend B] [--out results.json]
+                [--secret-file F] [--deadline S] [--jobs N] [--require-full-marks]
     rtlab grade --bundle STEP [--out DIR]
     rtlab inspect SCENE [--depth D] [--pixel X Y] [--screenshot out.png]
 
@@ -19,7 +20,7 @@ from rich.console import Console
 from rich.markup import escape
 
 console = Console()
-lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write their templates.")
+lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write their templates, make the student release.")
 
 
 @lab_app.command("list")
@@ -41,11 +42,23 @@ def lab_list():
 
 @lab_app.command("template")
 def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary"),
-                 out: Optional[Path] = typer.Option(None, help="folder to write (default labs/STEP/template)")):
-    """Write the step's template: the reference files with the student's regions stubbed."""
+                 out: Optional[Path] = typer.Option(None, help="folder to write (default STEP-template)")):
+    """Write the step's template: the kernels' files of the step with the student's regions stubbed."""
     from .template import write_template
-    for p in write_template(step, out):
+    for p in write_template(step, out or Path(f"{step}-template")):
         console.print(f"wrote {p}")
+
+
+@lab_app.command("release")
+def lab_release(out: Path = typer.Argument(..., help="folder to write (new or empty)"),
+                force: bool = typer.Option(False, "--force", help="replace the folder if it exists")):
+    """Write the student release: the project with every solution stubbed and the visible tests only."""
+    from .release import write_release
+    from .trees import tree_stubs
+    path = write_release(out, force=force)
+    n = sum(len(v) for v in tree_stubs(path / "kernels").values())
+    console.print(f"wrote {path}/ (pyproject.toml, README.md, rtlab/, kernels/ with {n} functions stubbed, "
+                  f"labs/ with visible tests, notebooks/): students `pip install -e {path}`")
 
 
 def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g. 00_primary"),
@@ -56,8 +69,16 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
                   device: Optional[str] = typer.Option(None, help="device name substring or index"),
                   out: Optional[Path] = typer.Option(None, help="results file (bundle: the folder to write)"),
                   tests: Optional[str] = typer.Option(None, help="comma-separated test names (default: all)"),
-                  jobs: Optional[int] = typer.Option(None, min=1, help="tests run at once (default: CPU cores, at most 4)"),
-                  keep: bool = typer.Option(False, help="keep the work folder (trees, logs) for debugging")):
+                  jobs: Optional[int] = typer.Option(None, min=1, help="tests run at once (default: the CPUs this process "
+                                                                "may use, as many as memory allows)"),
+                  keep: bool = typer.Option(False, help="keep the work folder (trees, logs) for debugging"),
+                  secret_file: Optional[Path] = typer.Option(None, help="seed of the hidden tests' rays (the "
+                                                             "bundle's grading-secret; default: drawn for this run)"),
+                  deadline: Optional[float] = typer.Option(None, help="seconds for the whole run (default: "
+                                                           "grading.toml's deadline, 480)"),
+                  require_full_marks: bool = typer.Option(False, "--require-full-marks",
+                                                          help="exit with status 1 unless every point is scored "
+                                                               "(the bundle's self-check of the reference)")):
     """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
     from ..errors import RtlabError
     from .results import FORMATS, report_table, write_report
@@ -79,29 +100,42 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
     def progress(t):
         status.print(f"  {t.name}: {t.score:g} / {t.max_score:g} ({t.status}, {t.seconds:.1f} s)")
 
+    out_fmt = "json" if fmt == "json" else "gradescope"
+
+    def on_update(partial):   # results after every test: a run killed from outside still reports
+        if out is not None:
+            write_report(partial, out, out_fmt)
+
     try:
+        from .grader import read_secret
+        secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
                        tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,
-                       progress=progress)
+                       progress=progress, secret=secret, deadline=deadline, on_update=on_update)
     except Exception as e:  # the grader always writes results, even when it cannot grade
         report = grading_failure_report(step, submission, backend, e)
         if out is not None:
-            write_report(report, out, "json" if fmt == "json" else "gradescope")
+            write_report(report, out, out_fmt)
         if isinstance(e, RtlabError):
             raise
         raise RtlabError(f"grading failed: {type(e).__name__}: {e}") from e
     if out is not None:
-        write_report(report, out, "json" if fmt == "json" else "gradescope")
+        write_report(report, out, out_fmt)
     if quiet:
         from .results import full_dict, gradescope_dict
         data = full_dict(report) if fmt == "json" else gradescope_dict(report)
         sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
-        return
-    console.print(report_table(report))
-    for note in report.notes:
-        console.print(f"note: {escape(note)}")
-    if out is not None:
-        console.print(f"wrote {out}")
+    else:
+        console.print(report_table(report))
+        for note in report.notes:
+            console.print(f"note: {escape(note)}")
+        if out is not None:
+            console.print(f"wrote {out}")
+    if require_full_marks and report.score < report.max_score:
+        short = [f"{t.name} ({t.status}: {t.score:g} / {t.max_score:g})" for t in report.tests if t.score < t.max_score]
+        Console(stderr=True).print(f"rtlab: not full marks ({report.score:g} / {report.max_score:g}): "
+                                   + escape(", ".join(short)))
+        raise typer.Exit(1)
 
 
 def inspect_command(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),

@@ -22,7 +22,11 @@ from .regions import LabError
 
 VISIBILITIES = ("visible", "after_due_date", "after_published", "hidden")
 DEFAULT_TIME_LIMIT = 20.0     # seconds for a test's own work: kernel launches and checks
-DEFAULT_SETUP_LIMIT = 120.0   # seconds for a test process to start, load its scene and compile
+# Seconds for a test process to start and load its scene, and again for each kernel it compiles. The
+# reference needs at most ~7 s for one (ropes, cold caches, the 2-core lab machine under load).
+DEFAULT_SETUP_LIMIT = 30.0
+DEFAULT_MEMORY_LIMIT_MB = 2048  # per test process (RLIMIT_DATA); the reference peaks near 320 MB
+DEFAULT_DEADLINE = 480.0      # seconds for the whole grading run; tests not finished by then score 0
 
 
 @dataclass(frozen=True)
@@ -67,6 +71,8 @@ class LabConfig:
     files: tuple[LabFile, ...]
     tests: tuple[TestSpec, ...]
     setup_limit: float = DEFAULT_SETUP_LIMIT
+    memory_limit_mb: int = DEFAULT_MEMORY_LIMIT_MB
+    deadline: float = DEFAULT_DEADLINE
     path: Path | None = None
 
     @property
@@ -116,7 +122,7 @@ def load_config(step_or_path: str | Path) -> LabConfig:
     if not path.suffix:
         path = lab_dir(str(step_or_path)) / "grading.toml"
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as e:
         raise LabError(f"{path}: {e}") from None
     where = str(path)
@@ -169,6 +175,12 @@ def load_config(step_or_path: str | Path) -> LabConfig:
             requires=requires, description=t.get("description", "")))
     if not tests:
         raise LabError(f"{where}: no [[tests]]")
+    limits = {}
+    for key, default, kind in (("setup_limit", DEFAULT_SETUP_LIMIT, float), ("deadline", DEFAULT_DEADLINE, float),
+                               ("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB, int)):
+        value = defaults.get(key, default)
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
+            raise LabError(f"{where}: [defaults] {key} must be a positive number, got {value!r}")
+        limits[key] = kind(value)
     return LabConfig(step=step, title=raw.get("title", step), paper=raw.get("paper", ""), files=tuple(files),
-                     tests=tuple(tests), setup_limit=float(defaults.get("setup_limit", DEFAULT_SETUP_LIMIT)),
-                     path=path)
+                     tests=tuple(tests), path=path, **limits)

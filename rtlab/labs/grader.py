@@ -1,27 +1,34 @@
-"""The autograder: a submission's files laid over a copy of the kernels, each test in its own process.
+"""The autograder: a submission compiled in a tree of its own, each test in its own process.
 
     report = grade("00_primary", "path/to/submission")          # on PoCL by default
-    report.score, report.max_score; write_gradescope(report, "results.json")
+    report.score, report.max_score; write_report(report, "results.json")
 
 How a grading run goes:
-1. ``kernels/`` (the reference) is copied twice into a work directory: ``reference/kernels`` and
-   ``submission/kernels``; the submission's files (``[[files]]`` of grading.toml, found by path or
-   by name anywhere in the submission) replace theirs in the second. A file not handed in is graded
-   as the template's (stubbed) version, never as the reference.
+1. The submission's files (``[[files]]`` of grading.toml, found by path or by name anywhere in the
+   submission) are checked by the rule of rtlab.labs.submission and laid over a copy of the kernels
+   in which every solution of this step and the later ones is stubbed (rtlab.labs.trees). A file
+   that is refused stands there as an ``#error``: the tests whose kernels include it score 0 and say
+   why, the others run. A file not handed in is graded as the template's (stubbed) version.
 2. The grader prepares each test's fixture on the host (scene, rays, float64 reference answers).
+   Tests hidden until the due date draw their rays from a secret (the bundle's), or from a seed
+   drawn for this run when there is none.
 3. Each test runs in its own process (``python -m rtlab.labs.run_test``) with ``RTLAB_KERNEL_DIR`` on
-   the submission's tree: setup (scene upload, compile) under the config's setup limit, then the
-   test's work under its own time limit. A compile error (file and line of the student's source),
-   a crash (signal), a hang (killed at the limit) costs that test only.
-4. Speed tests run last and alone, alternating reference and submission processes on the same
-   device, and score the ratio of the best times.
+   the submission's tree, a memory limit, a setup limit per kernel compile and its own run limit.
+   A compile error (file and line of the student's source), a crash, a hang or a memory blow-up
+   costs that test only. The whole run has a deadline: tests not done by then score 0.
+4. Speed tests run last and alone, against the reference kernels (a copy in a folder of their own),
+   every timed launch checked.
+5. ``on_update(report)`` gets the report after every test (pending tests at 0), so results.json
+   can be written as the run goes and a run killed from outside still reports.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
-import re
 import pickle
+import re
+import secrets
 import shutil
 import signal
 import subprocess
@@ -30,15 +37,16 @@ import tempfile
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..paths import REFERENCE_KERNEL_DIR
 from .config import LabConfig, TestSpec, load_config
-from .regions import LabError, stubbed_functions, strip_regions
+from .regions import LabError
+from .submission import REFUSED_MARK
+from .trees import StudentTree, build_student_tree, find_submitted_file, reference_tree, template_text  # noqa: F401
 
-REFERENCE_KERNELS = REFERENCE_KERNEL_DIR
 POLL_S = 0.05
+GRADER_OVERHEAD_MB = 1024       # the grading process itself (scenes, fixtures, numba) beside its tests
 
 
 @dataclass
@@ -48,7 +56,7 @@ class TestResult:
     max_score: float
     output: str
     visibility: str
-    status: str          # passed, failed, compile_error, crashed, timeout, error, skipped
+    status: str          # passed, partial, failed, compile_error, refused, crashed, timeout, memory, error, skipped, pending
     seconds: float = 0.0
     data: dict = field(default_factory=dict)
 
@@ -80,97 +88,77 @@ class GradeReport:
 
 
 # --------------------------------------------------------------------------------------------------
-# the submission's kernel tree
+# resources of the grading machine
 # --------------------------------------------------------------------------------------------------
-def find_submitted_file(submission: Path, relpath: str) -> tuple[Path | None, str | None]:
-    """The submission's copy of ``relpath`` (e.g. kernels/shared/rt_types.h): by its path, by its
-    path below kernels/, or by its name anywhere (Gradescope uploads arrive flat). (path, note)."""
-    rel = Path(relpath)
-    parts = rel.parts
-    for k in range(len(parts)):
-        p = submission.joinpath(*parts[k:])
-        if p.is_file():
-            return p, None
-    found = sorted(p for p in submission.rglob(rel.name) if p.is_file())
-    if not found:
-        return None, None
-    if len(found) > 1:
-        return found[0], (f"{len(found)} files named {rel.name} in the submission; graded "
-                          f"{found[0].relative_to(submission)}")
-    return found[0], None
+def _read(path: str) -> str:
+    try:
+        with open(path) as f:
+            return f.read().strip()
+    except OSError:
+        return ""
 
 
-def later_functions(config: LabConfig, relpath: str) -> dict[str, str]:
-    """function -> step, for functions that later lab steps ask for in the same file: a template
-    stubs them too, so that lab 04's rt_whitted.h does not hand out lab 05's solution."""
-    from .config import lab_names
-    out: dict[str, str] = {}
-    for step in lab_names():
-        if step <= config.step:
-            continue
-        for lf in load_config(step).files:
-            if lf.path == relpath:
-                for f in lf.functions:
-                    out.setdefault(f, step)
-    return out
+def available_cpus() -> int:
+    """CPUs this process may use: its affinity mask, capped by a cgroup CPU quota (containers)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    quota = _read("/sys/fs/cgroup/cpu.max").split()            # cgroup v2: "max 100000" or "200000 100000"
+    if len(quota) == 2 and quota[0] != "max":
+        n = min(n, max(1, -(-int(quota[0]) // int(quota[1]))))
+    else:                                                      # cgroup v1
+        q, p = _read("/sys/fs/cgroup/cpu/cpu.cfs_quota_us"), _read("/sys/fs/cgroup/cpu/cpu.cfs_period_us")
+        if q.lstrip("-").isdigit() and p.isdigit() and int(q) > 0:
+            n = min(n, max(1, -(-int(q) // int(p))))
+    return max(1, n)
 
 
-def template_text(config: LabConfig, relpath: str, functions) -> str:
-    """The reference file with the lab's (and later labs') student regions stubbed."""
-    text = strip_regions((REFERENCE_KERNELS.parent / relpath).read_text(), list(functions), config.step, relpath)
-    later: dict[str, list[str]] = {}
-    for f, step in later_functions(config, relpath).items():
-        if f not in functions:
-            later.setdefault(step, []).append(f)
-    for step, fs in sorted(later.items()):
-        text = strip_regions(text, fs, step, relpath)
-    return text
+def available_memory_mb() -> int | None:
+    """Memory this process may use: a cgroup limit, else the machine's total (None if unknown)."""
+    limits = []
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        v = _read(path)
+        if v.isdigit() and int(v) < 1 << 60:
+            limits.append(int(v) // 2 ** 20)
+    for line in _read("/proc/meminfo").splitlines():
+        if line.startswith("MemTotal:"):
+            limits.append(int(line.split()[1]) // 1024)
+    return min(limits) if limits else None
 
 
-INCLUDE_RE = re.compile(r'^(\s*#\s*include\s*)"([^"/]+)"', re.M)
+def default_jobs(memory_limit_mb: int) -> int:
+    """Tests run at once: one per usable CPU, no more than the memory holds at the per-test limit."""
+    n = available_cpus()
+    mem = available_memory_mb()
+    if mem is not None:
+        n = min(n, max(1, (mem - GRADER_OVERHEAD_MB) // max(1, memory_limit_mb)))
+    return max(1, n)
 
 
-def absolute_includes(tree: Path) -> None:
-    """Make the top-level kernels of ``tree`` include its shared headers by absolute path, so that a
-    process whose $RTLAB_KERNEL_DIR is another tree still compiles this one (see use_kernel_tree)."""
-    shared = tree / "shared"
-    for f in list((tree / "opencl").glob("*.cl")) + list((tree / "cuda").glob("*.cu")):
-        text = f.read_text()
-        f.write_text(INCLUDE_RE.sub(lambda m: f'{m.group(1)}"{shared / m.group(2)}"'
-                                    if (shared / m.group(2)).is_file() else m.group(0), text))
+# --------------------------------------------------------------------------------------------------
+# hidden tests: their rays come from a secret
+# --------------------------------------------------------------------------------------------------
+def hidden_seed(secret: str, test: str) -> int:
+    """The seed of a hidden test's rays: from the bundle's secret and the test's name."""
+    return int.from_bytes(hashlib.sha256(f"{secret}\0{test}".encode()).digest()[:4], "little")
 
 
-def build_trees(config: LabConfig, submission: Path, work: Path) -> tuple[Path, Path, list[str]]:
-    """(reference tree, submission tree, notes): each a copy of kernels/, the second with the
-    submission's files laid over it."""
-    ref = work / "reference" / "kernels"
-    sub = work / "submission" / "kernels"
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
-    shutil.copytree(REFERENCE_KERNELS, ref, ignore=ignore)
-    shutil.copytree(REFERENCE_KERNELS, sub, ignore=ignore)
-    absolute_includes(ref)
-    notes = []
-    for lf in config.files:
-        target = work / "submission" / lf.path
-        src, note = find_submitted_file(submission, lf.path)
-        if note:
-            notes.append(note)
-        if src is None:
-            notes.append(f"{lf.path} was not handed in: graded with the template's version (stubs)")
-            target.write_text(template_text(config, lf.path, lf.functions))
-            continue
-        try:
-            text = src.read_text()
-        except UnicodeDecodeError:
-            notes.append(f"{lf.path} is not a text file: graded with the template's version (stubs)")
-            target.write_text(template_text(config, lf.path, lf.functions))
-            continue
-        target.write_text(text)
-        stubs = [f for f in stubbed_functions(text) if f in lf.functions]
-        if stubs:
-            notes.append(f"{', '.join(stubs)} in {lf.path} still hold{'s' if len(stubs) == 1 else ''} "
-                         f"the template's stub (TODO)")
-    return ref, sub, notes
+def spec_for_run(spec: TestSpec, secret: str) -> TestSpec:
+    """A hidden test with its seed replaced by one drawn from ``secret`` (visible tests unchanged)."""
+    if spec.visibility == "visible" or "seed" not in spec.params:
+        return spec
+    return replace(spec, params={**spec.params, "seed": hidden_seed(secret, spec.name)})
+
+
+def read_secret(path) -> str:
+    try:
+        secret = Path(path).read_text().strip()
+    except OSError as e:
+        raise LabError(f"cannot read the grading secret {path}: {e.strerror}") from None
+    if len(secret) < 16:
+        raise LabError(f"the grading secret {path} is too short (write 32 random hex digits)")
+    return secret
 
 
 # --------------------------------------------------------------------------------------------------
@@ -231,12 +219,21 @@ def prepare_fixture(spec: TestSpec, **extra) -> Path:
 # --------------------------------------------------------------------------------------------------
 @dataclass
 class ChildResult:
-    status: str                 # ok, compile_error, crashed, timeout, error
+    status: str                 # ok, compile_error, crashed, timeout, memory, error, skipped, deadline
     fraction: float = 0.0
     output: str = ""
     data: dict = field(default_factory=dict)
     seconds: float = 0.0
     device: str = ""
+    programs: list = field(default_factory=list)     # what the process compiled and launched
+
+
+@dataclass(frozen=True)
+class Limits:
+    setup: float            # seconds to start, and again for each kernel compile
+    run: float              # seconds for the test's own work
+    memory_mb: int          # the process's RLIMIT_DATA
+    deadline_at: float      # time.monotonic() when the whole grading run must end
 
 
 def _signal_text(sig: int) -> str:
@@ -250,40 +247,83 @@ def _signal_text(sig: int) -> str:
             "SIGFPE": "arithmetic exception (integer division by zero?)",
             "SIGABRT": "aborted (the OpenCL runtime gave up, often after an out-of-bounds write)",
             "SIGILL": "illegal instruction",
-            "SIGKILL": "killed (out of memory?)"}.get(name, "")
+            "SIGKILL": "killed (out of memory?)",
+            "SIGXFSZ": "wrote more than a test process may (a kernel printing without end?)"}.get(name, "")
     return f"{name} ({what})" if what else name
 
 
-def _log_tail(path: Path, lines: int = 8) -> str:
+def _log_tail(path: Path, lines: int = 8, max_bytes: int = 1 << 16) -> str:
     try:
-        text = path.read_text(errors="replace").strip().splitlines()
+        with open(path, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - max_bytes))
+            text = f.read().decode("utf-8", "replace").strip().splitlines()
     except OSError:
         return ""
     return "\n".join(text[-lines:])
 
 
-def run_child(test_dir: Path, job: dict, kernel_root: Path, setup_limit: float, run_limit: float) -> ChildResult:
-    """Run one test process and watch its two time limits."""
+MAX_OUTPUT = 6000     # characters of a test's message (a compiler can print thousands of errors)
+
+
+def _shorten(text: str) -> str:
+    if len(text) <= MAX_OUTPUT:
+        return text
+    return text[:MAX_OUTPUT - 200] + f"\n... ({len(text) - MAX_OUTPUT + 200:,} more characters cut)"
+
+
+MEMORY_SIGNS = ("MemoryError", "bad_alloc", "out of memory", "Cannot allocate memory", "Allocation failed")
+
+
+def _vm_kb(pid: int) -> dict:
+    out = {}
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key in ("VmHWM", "VmData"):
+                    out[key] = int(value.split()[0])
+    except (OSError, ValueError):
+        pass
+    return out
+
+
+def run_child(test_dir: Path, job: dict, kernel_root: Path, limits: Limits) -> ChildResult:
+    """Run one test process and watch its limits: setup (restarted at each kernel compile), run,
+    memory (the process caps itself; the peak is watched here for the message) and the run's deadline."""
     test_dir.mkdir(parents=True, exist_ok=True)
-    (test_dir / "spec.json").write_text(json.dumps(job, default=str))
+    (test_dir / "spec.json").write_text(json.dumps({**job, "memory_limit_mb": limits.memory_mb}, default=str))
     env = dict(os.environ, RTLAB_KERNEL_DIR=str(kernel_root), PYTHONUNBUFFERED="1")
     env.setdefault("POCL_CACHE_DIR", str(test_dir.parent.parent / "pocl-cache"))
     t0 = time.monotonic()
+    peak_kb = 0
     with open(test_dir / "log.txt", "wb") as log:
         proc = subprocess.Popen([sys.executable, "-m", "rtlab.labs.run_test", str(test_dir)], env=env,
                                 stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True, cwd=test_dir)
         run_start = None
-        timed_out = None
+        step_start, step = t0, ""
+        stopped = None
         while proc.poll() is None:
             now = time.monotonic()
-            if run_start is None and (test_dir / "phase").exists():
-                run_start = now
-            if run_start is None and now - t0 > setup_limit:
-                timed_out = ("setup", setup_limit)
-            elif run_start is not None and now - run_start > run_limit:
-                timed_out = ("run", run_limit)
-            if timed_out:
+            if run_start is None:
+                if (test_dir / "phase").exists():
+                    run_start = now
+                else:
+                    try:
+                        mark = (test_dir / "setup").read_text()
+                    except OSError:
+                        mark = ""
+                    if mark != step:
+                        step, step_start = mark, now
+            vm = _vm_kb(proc.pid)
+            peak_kb = max(peak_kb, vm.get("VmHWM", 0))
+            if now >= limits.deadline_at:
+                stopped = ("deadline", 0.0)
+            elif run_start is None and now - step_start > limits.setup:
+                stopped = ("setup", limits.setup)
+            elif run_start is not None and now - run_start > limits.run:
+                stopped = ("run", limits.run)
+            if stopped:
                 try:
                     os.killpg(proc.pid, signal.SIGKILL)
                 except ProcessLookupError:
@@ -292,38 +332,53 @@ def run_child(test_dir: Path, job: dict, kernel_root: Path, setup_limit: float, 
                 break
             time.sleep(POLL_S)
     seconds = time.monotonic() - t0
-    if timed_out:
-        phase, limit = timed_out
+    programs = []
+    try:
+        programs = json.loads((test_dir / "programs.json").read_text())
+    except (OSError, ValueError):
+        pass
+    data = {"peak_memory_mb": round(peak_kb / 1024, 1)} if peak_kb else {}
+    if stopped:
+        phase, limit = stopped
+        if phase == "deadline":
+            return ChildResult("deadline", 0.0, "stopped: the grading run reached its deadline (see the note)",
+                               data, seconds=seconds, programs=programs)
         if phase == "setup":
-            msg = (f"did not finish compiling and loading within {limit:g} s (killed): a compiler stuck on "
-                   f"the source, or an overloaded machine")
+            what = "compiling a kernel" if step else "starting and loading its scene"
+            msg = (f"stopped after {limit:g} s {what} (the setup limit; the reference needs a few seconds): "
+                   f"a compiler stuck on the source (a macro that expands without end?), or an overloaded machine")
         else:
             msg = (f"timed out: still running after {limit:g} s (the reference needs a small fraction of that), "
                    f"killed. An endless loop? (a traversal that never empties its stack or never leaves a "
                    f"leaf, a loop counter that never advances)")
-        return ChildResult("timeout", 0.0, msg, seconds=seconds)
+        return ChildResult("timeout", 0.0, msg, data, seconds=seconds, programs=programs)
     result_file = test_dir / "result.json"
     if result_file.is_file():
         r = json.loads(result_file.read_text())
-        return ChildResult(r["status"], float(r["fraction"]), r["output"], r.get("data", {}), seconds,
-                           r.get("device", ""))
+        return ChildResult(r["status"], float(r["fraction"]), r["output"], {**r.get("data", {}), **data}, seconds,
+                           r.get("device", ""), programs)
     rc = proc.returncode
     phase = "running its kernel" if (test_dir / "phase").exists() else "starting (compiling or loading)"
-    if rc < 0:
-        return ChildResult("crashed", 0.0, f"crashed while {phase}: {_signal_text(-rc)}", seconds=seconds)
     tail = _log_tail(test_dir / "log.txt")
-    return ChildResult("error", 0.0, f"the test process failed while {phase} (exit status {rc}):\n{tail}",
-                       seconds=seconds)
+    if any(sign in tail for sign in MEMORY_SIGNS):
+        return ChildResult("memory", 0.0, f"ran out of memory while {phase}: a test process may use "
+                                          f"{limits.memory_mb} MB (grading.toml memory_limit_mb; the reference needs "
+                                          f"a fraction of that). A macro that expands without end, or a huge array?",
+                           data, seconds=seconds, programs=programs)
+    if rc < 0:
+        return ChildResult("crashed", 0.0, f"crashed while {phase}: {_signal_text(-rc)}", data, seconds=seconds,
+                           programs=programs)
+    return ChildResult("error", 0.0, f"the test process failed while {phase} (exit status {rc}):\n{tail}", data,
+                       seconds=seconds, programs=programs)
 
 
 # --------------------------------------------------------------------------------------------------
-# a grading run
+# messages
 # --------------------------------------------------------------------------------------------------
-def _clean(text: str, work: Path) -> str:
-    """Paths inside the work directory read as the student's: kernels/shared/rt_types.h:57:5."""
+def _clean(text: str, roots: list[tuple[Path, str]]) -> str:
+    """Paths of the grader's folders read as the student's: kernels/shared/rt_types.h:57:5."""
     from .checks import HARNESS_DIR
-    for root, to in ((work / "submission", ""), (work / "reference", "reference/"), (work, ""),
-                     (HARNESS_DIR, "rtlab/labs/harness/")):
+    for root, to in [*roots, (HARNESS_DIR, "rtlab/labs/harness/")]:
         text = text.replace(str(root) + os.sep, to)
     return text
 
@@ -346,114 +401,240 @@ def compile_message(text: str) -> str:
     return "\n".join(out)
 
 
-def grade(step: str, submission, backend: str = "opencl", device: str | None = None,
-          tests: list[str] | None = None, jobs: int | None = None, time_scale: float = 1.0,
-          keep: bool = False, progress=None, config: LabConfig | None = None) -> GradeReport:
-    """Grade ``submission`` (a folder) on lab ``step``; ``tests`` limits to some tests by name;
-    ``time_scale`` multiplies every test's time limit (not the setup limit).
-    ``progress(TestResult)`` is called as each test ends."""
-    t_start = time.monotonic()
-    config = config or load_config(step)
-    submission = Path(submission)
-    if not submission.is_dir():
-        raise LabError(f"submission folder {submission} does not exist")
-    specs = [t for t in config.tests if tests is None or t.name in tests]
-    if tests:
-        unknown = sorted(set(tests) - {t.name for t in config.tests})
-        if unknown:
-            raise LabError(f"lab {config.step} has no test {', '.join(unknown)}")
-    jobs = jobs or max(1, min(4, os.cpu_count() or 1))
-    work = Path(tempfile.mkdtemp(prefix="rtlab-grade-"))
-    results: dict[str, TestResult] = {}
-    device_name = ""
-    try:
-        ref_tree, sub_tree, notes = build_trees(config, submission, work)
-        stub_note = [n for n in notes if "stub" in n]
+def used_functions(programs: list[dict], tree: Path) -> set[str] | None:
+    """Functions the launched kernels of ``programs`` call (through the tree's headers and macros
+    under each program's defines); None when the process recorded no program."""
+    from .cpp import Preprocessor
+    if not programs:
+        return None
+    used: set[str] = set()
+    for p in programs:
+        try:
+            pp = Preprocessor([Path(tree) / "shared"], p["defines"]).run(p["path"])
+        except (OSError, RecursionError):
+            return None
+        roots = p["kernels"] or pp.kernels()
+        used |= pp.reachable(roots)
+    return used
 
-        def finish(spec: TestSpec, r: ChildResult) -> TestResult:
-            nonlocal device_name
-            device_name = device_name or r.device
-            status = {"ok": "passed" if r.fraction >= 1.0 else "failed"}.get(r.status, r.status)
-            if r.status == "ok" and 0 < r.fraction < 1.0:
-                status = "partial"
-            output = _clean(r.output, work)
-            if r.status == "compile_error":
-                output = compile_message(output)
-            if status != "passed" and stub_note:
-                output += "\nnote: " + "; ".join(stub_note)
-            res = TestResult(spec.name, round(spec.points * r.fraction, 3), spec.points, output,
-                             spec.visibility, status, round(r.seconds, 2), r.data)
-            results[spec.name] = res
-            if progress:
-                progress(res)
-            return res
 
-        def job_for(spec: TestSpec, fixture: Path) -> dict:
-            return {"spec": spec.as_dict(), "step": config.step, "backend": backend, "device": device,
-                    "fixture": str(fixture)}
+# --------------------------------------------------------------------------------------------------
+# a grading run
+# --------------------------------------------------------------------------------------------------
+class GradingRun:
+    """One grading of one submission: the trees, the tests' processes, the report as it grows."""
 
-        def run_one(spec: TestSpec, tag: str, tree: Path, fixture: Path) -> ChildResult:
-            return run_child(work / "tests" / f"{spec.name}-{tag}", job_for(spec, fixture), tree,
-                             config.setup_limit, spec.time_limit * time_scale)
+    def __init__(self, config: LabConfig, submission: Path, specs: list[TestSpec], backend: str, device,
+                 jobs: int, time_scale: float, secret: str, deadline: float, progress, on_update):
+        self.config, self.submission, self.specs = config, submission, specs
+        self.backend, self.device, self.jobs, self.time_scale = backend, device, jobs, time_scale
+        self.secret = secret
+        self.progress, self.on_update = progress, on_update
+        self.t_start = time.monotonic()
+        self.deadline = deadline
+        self.deadline_at = self.t_start + deadline
+        self.work = Path(tempfile.mkdtemp(prefix="rtlab-grade-"))
+        self.ref_tree: Path | None = None
+        self.tree: StudentTree | None = None
+        self.results: dict[str, TestResult] = {}
+        self.notes: list[str] = []
+        self.device_name = ""
 
-        def fixture_or_error(spec: TestSpec, **extra):
-            try:
-                return prepare_fixture(spec, **extra), None
-            except Exception as e:  # a grader problem, not the student's: say so
-                return None, ChildResult("error", 0.0, f"grader error while preparing this test "
-                                                       f"(not your code): {type(e).__name__}: {e}")
+    # -- report ---------------------------------------------------------------------------------
+    def report(self) -> GradeReport:
+        tests = []
+        for s in self.specs:
+            r = self.results.get(s.name)
+            tests.append(r if r is not None else TestResult(
+                s.name, 0.0, s.points, "not graded: the grading run stopped before this test finished (a time or "
+                                       "memory limit of the grading machine?)", s.visibility, "pending"))
+        return GradeReport(self.config.step, str(self.submission), self.backend, self.device_name, tests,
+                           round(time.monotonic() - self.t_start, 2), list(self.notes))
 
+    def _updated(self) -> None:
+        if self.on_update:
+            self.on_update(self.report())
+
+    def _roots(self):
+        roots = [(self.work / "submission", ""), (self.work, "")]
+        if self.ref_tree is not None:
+            roots.insert(0, (self.ref_tree.parent, "reference/"))
+        return roots
+
+    def finish(self, spec: TestSpec, r: ChildResult) -> TestResult:
+        self.device_name = self.device_name or r.device
+        status = {"ok": "passed" if r.fraction >= 1.0 else "failed", "deadline": "timeout"}.get(r.status, r.status)
+        if r.status == "ok" and 0 < r.fraction < 1.0:
+            status = "partial"
+        output = _clean(r.output, self._roots())
+        if r.status == "compile_error" and REFUSED_MARK in output:
+            status = "refused"
+            files = [rel for rel in self.tree.refused if rel in output]
+            output = "not graded: a file this test compiles was refused:\n" + "\n".join(
+                f"  {x}" for rel in (files or self.tree.refused) for x in self.tree.refused[rel])
+        elif r.status == "compile_error":
+            output = compile_message(output)
+        output = _shorten(output)
+        if status != "passed" and status not in ("refused", "skipped", "pending"):
+            note = self.stub_note(r.programs)
+            if note:
+                output += "\nnote: " + note
+        data = dict(r.data)
+        if r.programs:
+            data["programs"] = [{"source": _clean(p["path"], self._roots()), "kernels": p["kernels"]}
+                                for p in r.programs]
+        res = TestResult(spec.name, round(spec.points * r.fraction, 3), spec.points, output,
+                         spec.visibility, status, round(r.seconds, 2), data)
+        self.results[spec.name] = res
+        if self.progress:
+            self.progress(res)
+        self._updated()
+        return res
+
+    def stub_note(self, programs: list[dict]) -> str:
+        """The unfinished functions of the lab this test uses (all of them when that is unknown)."""
+        stubs = {f: rel for rel, fs in self.tree.stubs.items() for f in fs}
+        if not stubs:
+            return ""
+        used = used_functions(programs, self.tree.root)
+        names = [f for f in stubs if used is None or f in used]
+        if not names:
+            return ""
+        by_file: dict[str, list[str]] = {}
+        for f in names:
+            by_file.setdefault(stubs[f], []).append(f)
+        return "; ".join(f"{', '.join(fs)} in {rel} still hold{'s' if len(fs) == 1 else ''} the template's stub (TODO)"
+                         for rel, fs in by_file.items())
+
+    # -- tests ----------------------------------------------------------------------------------
+    def job_for(self, spec: TestSpec, fixture: Path) -> dict:
+        return {"spec": spec.as_dict(), "step": self.config.step, "backend": self.backend, "device": self.device,
+                "fixture": str(fixture)}
+
+    def run_one(self, spec: TestSpec, fixture: Path) -> ChildResult:
+        limits = Limits(self.config.setup_limit, spec.time_limit * self.time_scale, self.config.memory_limit_mb,
+                        self.deadline_at)
+        return run_child(self.work / "tests" / spec.name, self.job_for(spec, fixture), self.tree.root, limits)
+
+    def fixture_or_error(self, spec: TestSpec, **extra):
+        try:
+            return prepare_fixture(spec_for_run(spec, self.secret), **extra), None
+        except Exception as e:  # a grader problem, not the student's: say so
+            return None, ChildResult("error", 0.0, f"grader error while preparing this test "
+                                                   f"(not your code): {type(e).__name__}: {e}")
+
+    def blocked(self, spec: TestSpec) -> list[str]:
+        return [r for r in spec.requires if r in self.results and not self.results[r].passed]
+
+    def past_deadline(self, spec: TestSpec) -> bool:
+        if time.monotonic() < self.deadline_at:
+            return False
+        self.finish(spec, ChildResult("deadline", 0.0, f"not run: the grading run reached its deadline of "
+                                                       f"{self.deadline:g} s (grading.toml deadline)"))
+        return True
+
+    def run(self) -> GradeReport:
         from .checks import KINDS
-        plain = [s for s in specs if not KINDS[s.kind].timed]
-        timed = [s for s in specs if KINDS[s.kind].timed]
-
-        def blocked(spec: TestSpec) -> list[str]:
-            return [r for r in spec.requires if r in results and not results[r].passed]
-
-        def skip(spec: TestSpec, why: list[str]) -> None:
-            finish(spec, ChildResult("skipped", 0.0, f"not run: needs {', '.join(why)} to pass first"))
-
+        self.tree = build_student_tree(self.config, self.submission, self.work / "submission")
+        self.notes += self.tree.notes
+        for rel, refusals in self.tree.refused.items():
+            self.notes.append(f"{rel} was refused (its tests score 0): " + "; ".join(str(r) for r in refusals))
+        self._updated()
+        names = {s.name for s in self.specs}
+        plain = [s for s in self.specs if not KINDS[s.kind].timed]
+        timed = [s for s in self.specs if KINDS[s.kind].timed]
         pending = list(plain)
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
+        with ThreadPoolExecutor(max_workers=self.jobs) as pool:
             running = {}
             while pending or running:
                 for spec in list(pending):
-                    if any(r not in results for r in spec.requires if r in {s.name for s in specs}):
+                    if any(r not in self.results for r in spec.requires if r in names):
                         continue
                     pending.remove(spec)
-                    if blocked(spec):
-                        skip(spec, blocked(spec))
+                    if self.past_deadline(spec):
                         continue
-                    fixture, err = fixture_or_error(spec)
+                    if self.blocked(spec):
+                        self.finish(spec, ChildResult("skipped", 0.0, f"not run: needs {', '.join(self.blocked(spec))} "
+                                                                      f"to pass first"))
+                        continue
+                    fixture, err = self.fixture_or_error(spec)
                     if err:
-                        finish(spec, err)
+                        self.finish(spec, err)
                         continue
-                    running[pool.submit(run_one, spec, "sub", sub_tree, fixture)] = spec
+                    running[pool.submit(self.run_one, spec, fixture)] = spec
                 if not running:
                     if pending:   # load_config lets a test require only earlier, untimed tests
                         raise LabError(f"tests {', '.join(s.name for s in pending)} wait on tests that never run")
                     continue
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for fut in done:
-                    finish(running.pop(fut), fut.result())
-
+                    self.finish(running.pop(fut), fut.result())
         for spec in timed:
-            if blocked(spec):
-                skip(spec, blocked(spec))
+            if self.past_deadline(spec):
                 continue
-            fixture, err = fixture_or_error(spec, reference_tree=ref_tree)
+            if self.blocked(spec):
+                self.finish(spec, ChildResult("skipped", 0.0, f"not run: needs {', '.join(self.blocked(spec))} to "
+                                                              f"pass first"))
+                continue
+            if self.ref_tree is None:
+                self.ref_tree = reference_tree()
+            fixture, err = self.fixture_or_error(spec, reference_tree=self.ref_tree)
             if err:
-                finish(spec, err)
+                self.finish(spec, err)
                 continue
-            finish(spec, run_one(spec, "sub", sub_tree, fixture))
+            self.finish(spec, self.run_one(spec, fixture))
+        self.compile_everything()
+        return self.report()
+
+    def compile_everything(self) -> None:
+        """The compile test stands for every kernel the run built: a test that hit a compile error
+        or a refused file fails it too (its own kernel is only one variant)."""
+        from .checks import KINDS
+        compile_specs = [s for s in self.specs if s.kind == "compile" and self.results.get(s.name)
+                         and self.results[s.name].passed]
+        broken = [(s, self.results[s.name]) for s in self.specs if s.name in self.results
+                  and self.results[s.name].status in ("compile_error", "refused") and KINDS[s.kind].name != "compile"]
+        if not compile_specs or not broken:
+            return
+        spec, first = broken[0]
+        who = f"test {spec.name}" if spec.visibility == "visible" else "a test hidden until the due date"
+        for c in compile_specs:
+            old = self.results[c.name]
+            self.results[c.name] = replace(old, score=0.0, status=first.status,
+                                           output=f"{old.output}\nbut the kernel of {who} does not build:\n"
+                                                  f"{first.output}")
+        self._updated()
+
+
+def grade(step: str, submission, backend: str = "opencl", device: str | None = None,
+          tests: list[str] | None = None, jobs: int | None = None, time_scale: float = 1.0,
+          keep: bool = False, progress=None, config: LabConfig | None = None, secret: str | None = None,
+          deadline: float | None = None, on_update=None) -> GradeReport:
+    """Grade ``submission`` (a folder) on lab ``step``; ``tests`` limits to some tests by name;
+    ``time_scale`` multiplies every test's run limit; ``secret`` seeds the hidden tests (a fresh
+    seed when None); ``deadline`` overrides the config's. ``progress(TestResult)`` is called as each
+    test ends, ``on_update(GradeReport)`` with the whole report so far."""
+    config = config or load_config(step)
+    submission = Path(submission)
+    if not submission.is_dir():
+        raise LabError(f"submission folder {submission} does not exist")
+    if tests:
+        unknown = sorted(set(tests) - {t.name for t in config.tests})
+        if unknown:
+            raise LabError(f"lab {config.step} has no test {', '.join(unknown)}")
+    specs = [t for t in config.tests if tests is None or t.name in tests]
+    run = GradingRun(config, submission, specs, backend, device, jobs or default_jobs(config.memory_limit_mb),
+                     time_scale, secret or secrets.token_hex(16), deadline or config.deadline, progress, on_update)
+    try:
+        report = run.run()
     finally:
         if not keep:
-            shutil.rmtree(work, ignore_errors=True)
-    ordered = [results[s.name] for s in specs if s.name in results]
+            shutil.rmtree(run.work, ignore_errors=True)
+        if run.ref_tree is not None:
+            shutil.rmtree(run.ref_tree.parent, ignore_errors=True)
     if keep:
-        notes = notes + [f"work directory kept: {work}"]
-    return GradeReport(config.step, str(submission), backend, device_name, ordered,
-                       round(time.monotonic() - t_start, 2), notes)
+        report.notes.append(f"work directory kept: {run.work}")
+    return report
 
 
 def grading_failure_report(step: str, submission, backend: str, error: Exception) -> GradeReport:
@@ -467,3 +648,16 @@ def grading_failure_report(step: str, submission, backend: str, error: Exception
         tests = []
     return GradeReport(step, str(submission), backend, "", tests, 0.0,
                        [f"the grader could not run: {type(error).__name__}: {error}"])
+
+
+INCLUDE_RE = re.compile(r'^(\s*#\s*include\s*)"([^"/]+)"', re.M)
+
+
+def absolute_includes(tree: Path) -> None:
+    """Make the top-level kernels of ``tree`` include its shared headers by absolute path (older
+    callers; the backends now search the shared folder of the tree a kernel belongs to first)."""
+    shared = tree / "shared"
+    for f in list((tree / "opencl").glob("*.cl")) + list((tree / "cuda").glob("*.cu")):
+        text = f.read_text()
+        f.write_text(INCLUDE_RE.sub(lambda m: f'{m.group(1)}"{shared / m.group(2)}"'
+                                    if (shared / m.group(2)).is_file() else m.group(0), text))

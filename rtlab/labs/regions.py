@@ -74,7 +74,10 @@ def find_regions(text: str, where: str = "<source>") -> list[Region]:
         sig = sigs[-1]
         ret = " ".join(sig.group("ret").split())
         body_start = b.end() + 1
-        first = text[body_start:text.find("\n", body_start)]
+        first_end = text.find("\n", body_start)
+        first = text[body_start:first_end]
+        if TODO_MARK in first:       # an already stubbed region: its STUB line follows the TODO line
+            first = text[first_end + 1:text.find("\n", first_end + 1)]
         stub_match = STUB_RE.match(first)
         regions.append(Region(function=sig.group("name"), return_type=ret, begin=b.start(), end=e.end(),
                               body_start=body_start, body_end=e.start(), indent=b.group(1), line=line,
@@ -129,11 +132,13 @@ def stubbed_functions(text: str) -> list[str]:
     return [r.function for r in regions if TODO_MARK in r.body(text)]
 
 
-def splice_regions(reference: str, student: str, where: str = "<source>") -> str:
+def splice_regions(reference: str, student: str, where: str = "<source>", functions=None) -> str:
     """The reference with each region's body taken from the same function's region in ``student``
-    (regions the student file lacks keep the reference body). Used to keep stored test
-    submissions current when the code around the regions changes."""
-    theirs = {r.function: r.body(student) for r in find_regions(student, where)}
+    (regions the student file lacks, or functions not in ``functions`` when given, keep the
+    reference body). Used to keep stored test submissions current when the code around the
+    regions changes, and to take a student's earlier steps in a student release."""
+    theirs = {r.function: r.body(student) for r in find_regions(student, where)
+              if functions is None or r.function in functions}
     out, pos = [], 0
     for r in find_regions(reference, where):
         if r.function not in theirs:

@@ -65,8 +65,9 @@ def _jsonable(x):
         return str(x)
 
 
-STATUS_STYLE = {"passed": "green", "partial": "yellow", "failed": "red", "compile_error": "red",
-                "crashed": "red", "timeout": "red", "error": "magenta", "skipped": "dim"}
+STATUS_STYLE = {"passed": "green", "partial": "yellow", "failed": "red", "compile_error": "red", "refused": "red",
+                "crashed": "red", "timeout": "red", "memory": "red", "error": "magenta", "skipped": "dim",
+                "pending": "dim"}
 
 
 def report_table(report: GradeReport):

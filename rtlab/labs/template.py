@@ -1,42 +1,29 @@
-"""Lab templates: the reference kernels with the lab's marked regions stubbed.
+"""Lab templates: the reference kernels with the lab's marked regions (and later labs') stubbed.
 
-``rtlab lab template STEP`` writes ``labs/STEP/template/<path>`` for every file a submission
-provides (grading.toml ``[[files]]``). Templates are generated, never edited by hand; a test checks
-that the committed ones are current.
+``rtlab lab template STEP --out DIR`` writes ``DIR/<path>`` for every file a submission provides
+(grading.toml ``[[files]]``). Templates are generated on demand from the kernels (one source of
+truth), never committed.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 from .config import LabConfig, load_config
-from .grader import template_text
-
-TEMPLATE_HEADER_NOTE = "template"
+from .trees import template_text
 
 
 def template_files(config: LabConfig) -> dict[str, str]:
     """relpath -> template text for every file of the lab."""
-    return {lf.path: template_text(config, lf.path, lf.functions) for lf in config.files}
+    return {lf.path: template_text(config, lf.path) for lf in config.files}
 
 
-def write_template(step: str, out: Path | None = None) -> list[Path]:
+def write_template(step: str, out: Path) -> list[Path]:
     config = load_config(step)
-    out = Path(out) if out is not None else config.folder / "template"
+    out = Path(out)
     written = []
     for rel, text in template_files(config).items():
         p = out / rel
         p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(text)
+        p.write_bytes(text.encode("latin-1"))
         written.append(p)
     return written
-
-
-def stale_template_files(step: str) -> list[str]:
-    """Files of labs/STEP/template that differ from what the generator writes now."""
-    config = load_config(step)
-    stale = []
-    for rel, text in template_files(config).items():
-        p = config.folder / "template" / rel
-        if not p.is_file() or p.read_text() != text:
-            stale.append(rel)
-    return stale

@@ -1,0 +1,550 @@
+"""Kernel sources read the way the C preprocessor reads them: tokens, directives, and the code a
+set of defines leaves active.
+
+The grader uses this twice:
+
+* :func:`tokenize` for the rule on submitted files (rtlab.labs.submission): a directive is found
+  wherever a compiler would find one, whatever the spelling (line splices ``\\`` + newline, comments
+  between ``#`` and the directive name, the ``%:`` digraph).
+* :class:`Preprocessor` to see which functions a kernel calls under its ``-D`` defines (a failing
+  test's note names only the unfinished functions that test uses).
+
+clang (PoCL's OpenCL C) and nvcc (CUDA C++) lex a few things differently: raw strings and digit
+separators are C++ only, trigraphs depend on the language mode. Those spellings could hide a
+directive from one reading and not the other, so :func:`tokenize` reports them (``Token.kind`` =
+"ambiguous") and the submission rule refuses them rather than guessing which compiler is right.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+TRIGRAPH_RE = re.compile(r"\?\?[=/'()!<>\-]")
+IDENT_RE = re.compile(r"[A-Za-z_$\x80-\xff][A-Za-z0-9_$\x80-\xff]*")
+NUMBER_RE = re.compile(r"\.?[0-9](?:[eEpP][+-]|[A-Za-z0-9_.])*")
+PUNCTUATORS = sorted(["%:%:", "...", "<<=", ">>=", "->", "++", "--", "<<", ">>", "<=", ">=", "==", "!=", "&&", "||",
+                      "*=", "/=", "%=", "+=", "-=", "&=", "^=", "|=", "##", "<:", ":>", "<%", "%>", "%:", "::"],
+                     key=len, reverse=True)
+LITERAL_PREFIXES = ("L", "u", "U", "u8")
+RAW_PREFIXES = ("R", "LR", "uR", "UR", "u8R")
+DIGRAPHS = {"%:": "#", "%:%:": "##", "<:": "[", ":>": "]", "<%": "{", "%>": "}"}
+
+
+@dataclass
+class Token:
+    kind: str        # ident, number, string, char, punct, other, ambiguous
+    text: str        # as written (digraphs spelled out: see .value)
+    line: int        # physical line (1-based) where the token starts
+    bol: bool        # first token of its logical line (a directive starts with such a '#')
+    why: str = ""    # for kind "ambiguous": what it is
+    pos: int = -1    # offset in the spliced text (adjacency: a function-like macro's '(')
+
+    @property
+    def value(self) -> str:
+        """The token's meaning: digraphs as the punctuator they stand for."""
+        return DIGRAPHS.get(self.text, self.text) if self.kind == "punct" else self.text
+
+
+def splice_lines(text: str) -> tuple[str, list[int]]:
+    """Translation phases 1-2 without trigraphs: newlines as \\n (\\r\\n and a lone \\r too),
+    backslash-newline splices removed (also with spaces between, which clang and gcc accept with a
+    warning). Returns the text and each character's physical line."""
+    out: list[str] = []
+    lines: list[int] = []
+    i, n, line = 0, len(text), 1
+    while i < n:
+        c = text[i]
+        if c == "\\":
+            j = i + 1
+            while j < n and text[j] in " \t\f\v":
+                j += 1
+            if j < n and text[j] in "\r\n":
+                j += 2 if text.startswith("\r\n", j) else 1
+                line += 1
+                i = j
+                continue
+        if c == "\r":
+            i += 2 if text.startswith("\r\n", i) else 1
+            c = "\n"
+        else:
+            i += 1
+        out.append(c)
+        lines.append(line)
+        if c == "\n":
+            line += 1
+    return "".join(out), lines
+
+
+def _literal_end(s: str, i: int, quote: str) -> int:
+    """Index just past the literal opening at s[i] (the quote), or -1 if the line ends first."""
+    j = i + 1
+    n = len(s)
+    while j < n:
+        c = s[j]
+        if c == "\\" and j + 1 < n and s[j + 1] != "\n":
+            j += 2
+            continue
+        if c == quote:
+            return j + 1
+        if c == "\n":
+            return -1
+        j += 1
+    return -1
+
+
+def tokenize(text: str) -> list[Token]:
+    """Preprocessing tokens of a source (comments dropped). ``text`` is the file decoded as Latin-1
+    (one character a byte, so any file decodes)."""
+    toks: list[Token] = []
+    for m in TRIGRAPH_RE.finditer(text):
+        toks.append(Token("ambiguous", m.group(), text.count("\n", 0, m.start()) + 1, False,
+                          f"the trigraph {m.group()} (compilers disagree on trigraphs: C++17 ignores them)"))
+    s, lines = splice_lines(text)
+    i, n, bol = 0, len(s), True
+
+    def add(kind, tok_text, at, why=""):
+        nonlocal bol
+        toks.append(Token(kind, tok_text, lines[at], bol, why, at))
+        bol = False
+
+    while i < n:
+        c = s[i]
+        if c == "\n":
+            bol = True
+            i += 1
+            continue
+        if c in " \t\f\v":
+            i += 1
+            continue
+        if s.startswith("//", i):
+            j = s.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        if s.startswith("/*", i):
+            j = s.find("*/", i + 2)
+            if j < 0:
+                add("ambiguous", "/*", i, "a comment that is never closed")
+                break
+            i = j + 2
+            continue
+        m = IDENT_RE.match(s, i)
+        if m:
+            word, end = m.group(), m.end()
+            if end < n and s[end] == '"' and word in RAW_PREFIXES:
+                add("ambiguous", word + '"', i, "a raw string literal (C++ only: C reads it otherwise)")
+                i = end + 1
+                continue
+            if end < n and s[end] in "\"'" and word in LITERAL_PREFIXES:
+                close = _literal_end(s, end, s[end])
+                if close < 0:
+                    add("ambiguous", s[i:end + 1], i, f"a {s[end]} that is not closed on its line")
+                    i = end + 1
+                    continue
+                add("string" if s[end] == '"' else "char", s[i:close], i)
+                i = close
+                continue
+            add("ident", word, i)
+            i = end
+            continue
+        if c.isdigit() or (c == "." and i + 1 < n and s[i + 1].isdigit()):
+            m = NUMBER_RE.match(s, i)
+            end = m.end()
+            if end < n and s[end] == "'" and end + 1 < n and (s[end + 1].isalnum() or s[end + 1] == "_"):
+                add("ambiguous", s[i:end + 2], i, "a digit separator ' (C++ only: C reads a character literal)")
+                i = end + 2
+                continue
+            add("number", s[i:end], i)
+            i = end
+            continue
+        if c in "\"'":
+            close = _literal_end(s, i, c)
+            if close < 0:
+                add("ambiguous", c, i, f"a {c} that is not closed on its line")
+                i += 1
+                continue
+            add("string" if c == '"' else "char", s[i:close], i)
+            i = close
+            continue
+        for p in PUNCTUATORS:
+            if s.startswith(p, i):
+                add("punct", p, i)
+                i += len(p)
+                break
+        else:
+            add("punct" if c in "#[](){}.&*+-~!/%<>^|?:;=,\\" else "other", c, i)
+            i += 1
+    toks.sort(key=lambda t: t.line)   # trigraph reports in line order (the sort is stable)
+    return toks
+
+
+@dataclass
+class Directive:
+    name: str              # "include", "define", ...; "" for a null directive; "#<number>" for a line marker
+    line: int
+    args: list[Token]      # the tokens after the name, to the end of the logical line
+    hash: Token = None     # the '#' (or '%:')
+
+
+def split_directives(toks: list[Token]) -> tuple[list[Directive], list[Token]]:
+    """(directives, the other tokens) of a token list, in order within each."""
+    directives, code = [], []
+    i, n = 0, len(toks)
+    while i < n:
+        t = toks[i]
+        if t.bol and t.kind == "punct" and t.value == "#":
+            j = i + 1
+            while j < n and not toks[j].bol:
+                j += 1
+            rest = toks[i + 1:j]
+            if not rest:
+                directives.append(Directive("", t.line, [], t))
+            elif rest[0].kind == "ident":
+                directives.append(Directive(rest[0].text, t.line, rest[1:], t))
+            else:
+                directives.append(Directive("#" + rest[0].text, t.line, rest[1:], t))
+            i = j
+            continue
+        code.append(t)
+        i += 1
+    return directives, code
+
+
+# --------------------------------------------------------------------------------------------------
+# a small preprocessor: which code a set of defines leaves active, and who calls whom
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Macro:
+    params: list[str] | None     # None: object-like
+    body: list[Token]
+
+
+class ExprError(ValueError):
+    pass
+
+
+def _int_literal(text: str) -> int:
+    t = text.rstrip("uUlL")
+    try:
+        if t.lower().startswith("0x"):
+            return int(t, 16)
+        if t.lower().startswith("0b"):
+            return int(t, 2)
+        if len(t) > 1 and t.startswith("0") and t.isdigit():
+            return int(t, 8)
+        return int(t)
+    except ValueError:
+        raise ExprError(f"not an integer: {text}") from None
+
+
+BINARY = [("||",), ("&&",), ("|",), ("^",), ("&",), ("==", "!="), ("<", "<=", ">", ">="), ("<<", ">>"),
+          ("+", "-"), ("*", "/", "%")]
+
+
+def evaluate(toks: list[str]) -> int:
+    """A C integer constant expression (after macro expansion and ``defined``): the operators of
+    #if, with C's truth values."""
+    pos = 0
+
+    def peek():
+        return toks[pos] if pos < len(toks) else None
+
+    def take():
+        nonlocal pos
+        pos += 1
+        return toks[pos - 1]
+
+    def primary():
+        t = take() if peek() is not None else None
+        if t is None:
+            raise ExprError("expression ends early")
+        if t == "(":
+            v = ternary()
+            if take() != ")":
+                raise ExprError("missing )")
+            return v
+        if t in ("!", "~", "-", "+"):
+            v = primary()
+            return {"!": int(not v), "~": ~v, "-": -v, "+": v}[t]
+        if t[0].isdigit():
+            return _int_literal(t)
+        if t.startswith("'"):
+            body = t[1:-1]
+            return ord(body[-1]) if body else 0
+        return 0   # an identifier left after expansion is 0
+
+    def binary(level):
+        if level == len(BINARY):
+            return primary()
+        v = binary(level + 1)
+        while peek() in BINARY[level]:
+            op = take()
+            w = binary(level + 1)
+            if op == "||":
+                v = int(bool(v) or bool(w))
+            elif op == "&&":
+                v = int(bool(v) and bool(w))
+            elif op in ("/", "%"):
+                if w == 0:
+                    raise ExprError("division by zero")
+                q = abs(v) // abs(w) * (1 if (v >= 0) == (w >= 0) else -1)
+                v = q if op == "/" else v - q * w
+            else:
+                v = {"|": lambda a, b: a | b, "^": lambda a, b: a ^ b, "&": lambda a, b: a & b,
+                     "==": lambda a, b: int(a == b), "!=": lambda a, b: int(a != b),
+                     "<": lambda a, b: int(a < b), "<=": lambda a, b: int(a <= b),
+                     ">": lambda a, b: int(a > b), ">=": lambda a, b: int(a >= b),
+                     "<<": lambda a, b: a << b, ">>": lambda a, b: a >> b,
+                     "+": lambda a, b: a + b, "-": lambda a, b: a - b, "*": lambda a, b: a * b}[op](v, w)
+        return v
+
+    def ternary():
+        c = binary(0)
+        if peek() == "?":
+            take()
+            a = ternary()
+            if take() != ":":
+                raise ExprError("missing : in ?:")
+            b = ternary()
+            return a if c else b
+        return c
+
+    v = ternary()
+    if pos != len(toks):
+        raise ExprError(f"unexpected {toks[pos]}")
+    return v
+
+
+@dataclass
+class Function:
+    name: str
+    file: Path
+    line: int
+    calls: set[str] = field(default_factory=set)    # identifiers in the body
+    is_kernel: bool = False
+
+
+KERNEL_QUALIFIERS = {"__kernel", "kernel", "__global__"}
+
+
+class Preprocessor:
+    """Runs the conditionals and includes of a kernel source under a set of defines (quoted
+    includes beside the including file, then in ``include_dirs``; anything else is skipped), and
+    collects the function definitions of the active code with the identifiers their bodies name."""
+
+    def __init__(self, include_dirs, defines: dict | None = None):
+        self.include_dirs = [Path(d) for d in include_dirs]
+        self.macros: dict[str, Macro] = {}
+        for k, v in (defines or {}).items():
+            self.macros[k] = Macro(None, tokenize(str(v)))
+        self.functions: dict[str, Function] = {}
+        self.files: list[Path] = []
+        self._once: set[Path] = set()
+
+    def resolve(self, name: str, current: Path) -> Path | None:
+        for d in [current.parent, *self.include_dirs]:
+            p = d / name
+            if p.is_file():
+                return p
+        return None
+
+    def run(self, path) -> "Preprocessor":
+        self._file(Path(path), 0)
+        return self
+
+    def _expand_ids(self, toks: list[Token], seen=frozenset()) -> list[str]:
+        out: list[str] = []
+        i = 0
+        while i < len(toks):
+            t = toks[i]
+            if t.kind == "ident" and t.text == "defined":
+                j = i + 1
+                paren = j < len(toks) and toks[j].value == "("
+                j += paren
+                name = toks[j].text if j < len(toks) else ""
+                out.append("1" if name in self.macros else "0")
+                i = j + 1 + paren
+                continue
+            if t.kind == "ident" and t.text in self.macros and t.text not in seen:
+                m = self.macros[t.text]
+                if m.params is None:
+                    out += self._expand_ids(m.body, seen | {t.text})
+                    i += 1
+                    continue
+            out.append(t.value)
+            i += 1
+        return out
+
+    def _condition(self, args: list[Token]) -> bool:
+        try:
+            return bool(evaluate(self._expand_ids(args)))
+        except (ExprError, RecursionError):
+            return False
+
+    def _file(self, path: Path, depth: int) -> None:
+        if depth > 40 or path in self._once:
+            return
+        self.files.append(path)
+        try:
+            text = path.read_bytes().decode("latin-1")
+        except OSError:
+            return
+        toks = tokenize(text)
+        active: list[Token] = []
+        stack: list[list[bool]] = []     # per #if: [this branch active, some branch taken, parent active]
+        live = True
+        i, n = 0, len(toks)
+        while i < n:
+            t = toks[i]
+            if t.bol and t.kind == "punct" and t.value == "#":
+                j = i + 1
+                while j < n and not toks[j].bol:
+                    j += 1
+                rest = toks[i + 1:j]
+                i = j
+                name = rest[0].text if rest and rest[0].kind == "ident" else ""
+                args = rest[1:]
+                if name in ("if", "ifdef", "ifndef"):
+                    if not live:
+                        stack.append([False, True, False])
+                    else:
+                        if name == "if":
+                            c = self._condition(args)
+                        else:
+                            c = bool(args) and ((args[0].text in self.macros) == (name == "ifdef"))
+                        stack.append([c, c, True])
+                    live = stack[-1][0]
+                elif name in ("elif", "elifdef", "elifndef") and stack:
+                    top = stack[-1]
+                    if top[2] and not top[1]:
+                        if name == "elif":
+                            c = self._condition(args)
+                        else:
+                            c = bool(args) and ((args[0].text in self.macros) == (name == "elifdef"))
+                        top[0] = c
+                        top[1] = c
+                    else:
+                        top[0] = False
+                    live = top[0]
+                elif name == "else" and stack:
+                    top = stack[-1]
+                    top[0] = top[2] and not top[1]
+                    top[1] = True
+                    live = top[0]
+                elif name == "endif" and stack:
+                    stack.pop()
+                    live = stack[-1][0] if stack else True
+                elif not live:
+                    pass
+                elif name == "define" and args and args[0].kind == "ident":
+                    mname = args[0].text
+                    body = args[1:]
+                    params = None
+                    # function-like: '(' right after the name (no space: same line and adjacent in source)
+                    if body and body[0].value == "(" and body[0].pos == args[0].pos + len(args[0].text):
+                        k = 1
+                        params = []
+                        while k < len(body) and body[k].value != ")":
+                            if body[k].kind == "ident" or body[k].value == "...":
+                                params.append(body[k].text)
+                            k += 1
+                        body = body[k + 1:]
+                    self.macros[mname] = Macro(params, body)
+                elif name == "undef" and args:
+                    self.macros.pop(args[0].text, None)
+                elif name == "include" and args and args[0].kind == "string":
+                    target = self.resolve(args[0].text[1:-1], path)
+                    if target is not None:
+                        self._collect(active, path)
+                        active = []
+                        self._file(target, depth + 1)
+                elif name == "pragma" and args and args[0].text == "once":
+                    self._once.add(path)
+                continue
+            if live:
+                active.append(t)
+            i += 1
+        self._collect(active, path)
+
+    def _collect(self, toks: list[Token], path: Path) -> None:
+        """Function definitions at file scope: NAME ( ... ) { ... }."""
+        depth = 0
+        i, n = 0, len(toks)
+        while i < n:
+            t = toks[i]
+            v = t.value
+            if v == "{" and depth == 0 and i > 0 and toks[i - 1].value == ")":
+                # walk back to the '(' that matches, then the name before it
+                k, level = i - 1, 0
+                while k >= 0:
+                    if toks[k].value == ")":
+                        level += 1
+                    elif toks[k].value == "(":
+                        level -= 1
+                        if level == 0:
+                            break
+                    k -= 1
+                name_tok = toks[k - 1] if k > 0 else None
+                # the body
+                j, level = i, 0
+                while j < n:
+                    if toks[j].value == "{":
+                        level += 1
+                    elif toks[j].value == "}":
+                        level -= 1
+                        if level == 0:
+                            break
+                    j += 1
+                if name_tok is not None and name_tok.kind == "ident":
+                    start = k - 1
+                    while start > 0 and toks[start - 1].value not in (";", "}", ")") and toks[start - 1].kind != "punct":
+                        start -= 1
+                    quals = {x.text for x in toks[start:k - 1]}
+                    body_ids = {x.text for x in toks[i:j] if x.kind == "ident"}
+                    self.functions[name_tok.text] = Function(name_tok.text, path, name_tok.line, body_ids,
+                                                             bool(quals & KERNEL_QUALIFIERS))
+                i = j + 1
+                continue
+            if v == "{":
+                depth += 1
+            elif v == "}":
+                depth = max(0, depth - 1)
+            i += 1
+
+    def _macro_ids(self, name: str, seen: set[str]) -> set[str]:
+        """Identifiers a macro expands to, macros inside expanded too."""
+        out: set[str] = set()
+        stack = [name]
+        while stack:
+            m = stack.pop()
+            if m in seen:
+                continue
+            seen.add(m)
+            for t in self.macros[m].body:
+                if t.kind == "ident":
+                    if t.text in self.macros:
+                        stack.append(t.text)
+                    else:
+                        out.add(t.text)
+        return out
+
+    def reachable(self, roots) -> set[str]:
+        """Functions called, directly or through macros, from the functions ``roots`` (names)."""
+        seen: set[str] = set()
+        stack = [r for r in roots if r in self.functions]
+        while stack:
+            f = stack.pop()
+            if f in seen:
+                continue
+            seen.add(f)
+            ids = set()
+            for ident in self.functions[f].calls:
+                if ident in self.macros:
+                    ids |= self._macro_ids(ident, set())
+                else:
+                    ids.add(ident)
+            stack += [x for x in ids if x in self.functions and x not in seen]
+        return seen
+
+    def kernels(self) -> list[str]:
+        return [f.name for f in self.functions.values() if f.is_kernel]
