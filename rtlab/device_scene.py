@@ -210,4 +210,4 @@ class DeviceScene:
 
 
 from .accel import tri_data as _tri_data  # noqa: E402,F401  registers TRI_DATA_BUILDERS["wald"], ["plucker"]
-from .accel import bvh as _bvh, ropes as _ropes  # noqa: E402,F401  registers ACCEL_BUILDERS["bvh"], ["ropes"]
+from .accel import bvh as _bvh, bvh_packet as _bvh_packet, ropes as _ropes  # noqa: E402,F401  ACCEL_BUILDERS

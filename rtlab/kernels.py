@@ -13,8 +13,9 @@ from .errors import VariantError
 from .paths import KERNEL_DIR
 
 # name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
-# here once its kernels exist in both languages.
-TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5}
+# here once its kernels exist in both languages. "bvh-packet" is the BVH walked by packets of
+# PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
+TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5, "bvh-packet": 6}
 INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
 NODE_MEMORY = {"global": 0, "texture": 1}
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
@@ -23,6 +24,7 @@ RAY_MEMORY = {"registers": 3, "shared": 4, "indexed": 5}
 RAY_ORDERS = {"rows": 0, "morton": 1}
 MEMORY_STEP = "01_memory"
 TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.tracing.TRACE_BLOCK)
+PACKET_LANES = 8          # rays a work-item of the bvh-packet traversal (RT_LANES): one AVX register
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -35,6 +37,9 @@ DEFAULT_PRIMARY_STEP = "00_primary"
 def primary_step(variant: "Variant") -> str:
     """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant: lab step
     01's kernels when the variant moves constants or the ray (only they declare those placements)."""
+    if variant.traversal == "bvh-packet" and variant.needs_memory_kernels():
+        raise VariantError("the bvh-packet traversal takes its rays in packets through lab step 00's kernels, "
+                           "which keep constants in constant memory and the ray in registers")
     step = PRIMARY_STEPS.get(variant.traversal)
     if step is not None and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
         raise VariantError(f"{variant.traversal} traversal has its own kernels ({step}), which keep constants "
@@ -161,12 +166,19 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
     }
     if variant.traversal == "bvh":
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
+    if variant.traversal == "bvh-packet":
+        defines["RT_LANES"] = PACKET_LANES
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block
         defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]
         defines["RT_TRACE_THREADS"] = TRACE_THREADS
     defines.update({k: int(v) for k, v in extra.items()})
     return defines
+
+
+def rays_per_work_item(variant: Variant) -> int:
+    """Rays one work-item of trace_rays takes (the launch covers n / this work-items)."""
+    return PACKET_LANES if variant.traversal == "bvh-packet" else 1
 
 
 def build_options(variant: Variant, backend) -> tuple[str, ...]:

@@ -12,7 +12,7 @@ import numpy as np
 from .backends import get_backend
 from .device_scene import DeviceScene
 from .errors import RtlabError
-from .kernels import Variant, load_program, primary_step
+from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .scene.model import Camera, Scene
 
@@ -108,7 +108,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     backend.fill(o_buf, float4_rows(origins, tmin))
     backend.fill(d_buf, float4_rows(directions, tmax))
     args = ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)]
-    times = [program.launch("trace_rays", (n,), (TRACE_BLOCK,), args, constants=("frame",))
+    items = -(-n // rays_per_work_item(variant))
+    times = [program.launch("trace_rays", (items,), (TRACE_BLOCK,), args, constants=("frame",))
              for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))

@@ -12,9 +12,14 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
                           const float4 *__restrict__ directions, float4 *__restrict__ hits, int n_rays)
 {
     int i = blockIdx.x * blockDim.x + threadIdx.x;
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES rays a thread, traced together (the CPU's traversal; it compiles and runs here too)
+    trace_packet(RT_SCENE_ARGS, &c_frame, origins, directions, hits, i * RT_LANES, n_rays);
+#else
     if (i >= n_rays)
         return;
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+#endif
 }
 
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).

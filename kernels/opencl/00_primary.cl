@@ -8,10 +8,15 @@ __kernel void trace_rays(RT_SCENE_PARAMS, __global const float4 *restrict origin
                          __global const float4 *restrict directions, __global float4 *restrict hits,
                          int n_rays, __constant RtFrame *frame)
 {
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES rays a work-item, traced together in SIMD lanes
+    trace_packet(RT_SCENE_ARGS, frame, origins, directions, hits, (int)get_global_id(0) * RT_LANES, n_rays);
+#else
     int i = get_global_id(0);
     if (i >= n_rays)
         return;
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+#endif
 }
 
 // One work-item a pixel; the work-group shape is the launch's (the paper's Fig. 4 studies it).

@@ -6,6 +6,9 @@
 #include "rt_traverse.h"
 #include "rt_shade.h"
 
+/* The host reads a hit as float4 (t, u, v, tri bits); a miss has tri = -1 and t = tmax. */
+RT_FN float4 pack_hit(Hit h) { return f4(h.t, h.u, h.v, rt_as_float(h.tri)); }
+
 /* Closest hit along *ray, its distance refined. The ray may live anywhere the pointer reaches: lab
  * step 01's CUDA kernels keep it in shared memory (§3.1.1). */
 RT_FN Hit closest_hit(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Ray *ray)
@@ -22,6 +25,36 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
     return closest_hit(RT_SCENE_ARGS, frame, &ray);
 }
+
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* The work of trace_rays with the packet traversal: rays first .. first + RT_LANES - 1 (those
+ * below n_rays) traced as one packet, each hit refined and written as trace_one's would be. */
+RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBAL const float4 *origins,
+                        RT_GLOBAL const float4 *directions, RT_GLOBAL float4 *hits, int first, int n_rays)
+{
+    RayPacket p;
+    HitPacket h;
+    packet_clear(&p, &h);
+    lanei live = li_splat(0);
+    for (int k = 0; k < RT_LANES && first + k < n_rays; ++k) {
+        float4 o = origins[first + k], d = directions[first + k];
+        Ray ray = make_ray(xyz(o), xyz(d), o.w, d.w);
+        Hit miss = make_miss(ray.tmax);
+        li_set(&live, k, packet_set_ray(&p, &h, k, &ray, &miss, frame->scene_min, frame->scene_max) ? -1 : 0);
+    }
+    if (lane_any(live))
+        traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
+    for (int k = 0; k < RT_LANES && first + k < n_rays; ++k) {
+        float4 o = origins[first + k], d = directions[first + k];
+        Ray ray = make_ray(xyz(o), xyz(d), o.w, d.w);
+        Hit hit = make_miss(ray.tmax);
+        if (li_get(live, k))
+            packet_get_hit(&h, k, &hit);
+        refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+        hits[first + k] = pack_hit(hit);
+    }
+}
+#endif
 
 /* Shaded colour of the closest hit along *ray; its hit record in *hit. */
 RT_FN unsigned int render_ray(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
@@ -82,7 +115,5 @@ RT_FN void block_pixel(int bx, int by, int bw, int bh, int tx, int ty, int *x, i
 #endif
 }
 
-/* The host reads a hit as float4 (t, u, v, tri bits); a miss has tri = -1 and t = tmax. */
-RT_FN float4 pack_hit(Hit h) { return f4(h.t, h.u, h.v, rt_as_float(h.tri)); }
 
 #endif /* RT_PRIMARY_H */

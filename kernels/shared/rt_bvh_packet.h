@@ -1,0 +1,275 @@
+/* rt_bvh_packet.h - BVH traversal of a packet of RT_LANES rays in one work-item: the traversal
+ * that suits a CPU (Wald, Boulos & Shirley, "Ray tracing deformable scenes using dynamic bounding
+ * volume hierarchies", ACM TOG 2007: a packet walks the BVH together, a node is entered when any
+ * of its rays hits the node's box).
+ *
+ * Why a packet on a CPU: PoCL runs a work-group's work-items one after another and can vectorise
+ * across them only in straight-line code, which a traversal loop is not. One ray a work-item
+ * therefore runs in scalar registers (a quarter or an eighth of an AVX register). Here each box
+ * and triangle test runs on all rays of the packet at once in lane vectors (rt_lanes.h), which
+ * PoCL's compiler keeps as SIMD instructions; neighbouring camera rays visit nearly the same nodes,
+ * so the packet costs little more than one ray. The kernels choose it with
+ * RT_TRAVERSAL_BVH_PACKET (rtlab's "bvh-packet"); on a GPU one thread a ray (rt_bvh.h) is the
+ * better choice, but the code compiles and runs there too.
+ *
+ * Layout in node_data, float4 rows (sync with rtlab/accel/bvh_packet.py), nodes first:
+ *   node i, rows 4 i .. 4 i + 3: (c0.lo.xyz, ref c0), (c0.hi.xyz, 0), (c1.lo.xyz, ref c1), (c1.hi.xyz, 0)
+ *   then each leaf's triangles, 3 rows each: (v0.xyz, triangle id), (v1 - v0, 0), (v2 - v0, 0)
+ * A child ref >= 0 is an inner node; a leaf is ~((row << 4) | count): count triangles from node_data
+ * row `row`, so a leaf reads its triangles without the object list's indirection. The root is
+ * node 0 and inner. RT_STACK_SIZE is the BVH's depth + 1.
+ *
+ * Boxes are clipped in the exact form (b - o) * inv with inv finite (bvh_inverse), so no lane can
+ * produce a NaN and min/max need no NaN rule; with RT_CONSERVATIVE the far distance is widened by
+ * its rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Moller-Trumbore runs on the
+ * lanes; the other triangle tests run lane by lane through the shared intersect_tri.
+ */
+#ifndef RT_BVH_PACKET_H
+#define RT_BVH_PACKET_H
+#include "rt_bvh.h"
+#include "rt_intersect.h"
+#include "rt_lanes.h"
+#include "rt_memory.h"
+
+#define PBVH_LEAF_BITS 4           /* at most 15 triangles a leaf (sync with rtlab/accel/bvh_packet.py) */
+#define PBVH_NODE_ROWS 4
+#define PBVH_TRI_ROWS 3
+
+/* The rays of a packet. A lane without a ray (past the end, a NaN/Inf or zero direction, a miss
+ * of the scene box) has o = 0, d = 0, inv = 1 and tmin = +inf: it enters no box and hits nothing. */
+typedef struct {
+    lanef ox, oy, oz;
+    lanef dx, dy, dz;
+    lanef ix, iy, iz;              /* bvh_inverse(d): finite */
+    lanef tmin;
+} RayPacket;
+
+/* Closest hits so far; t is +-inf... never NaN. A lane without a ray keeps t = -inf. */
+typedef struct {
+    lanef t, u, v;
+    lanei tri;
+} HitPacket;
+
+/* Every lane empty. */
+RT_FN void packet_clear(RayPacket *p, HitPacket *h)
+{
+    lanef zero = lf_splat(0.0f);
+    p->ox = zero;
+    p->oy = zero;
+    p->oz = zero;
+    p->dx = zero;
+    p->dy = zero;
+    p->dz = zero;
+    p->ix = lf_splat(1.0f);
+    p->iy = p->ix;
+    p->iz = p->ix;
+    p->tmin = lf_splat(RT_INF);
+    h->t = lf_splat(-RT_INF);
+    h->u = zero;
+    h->v = zero;
+    h->tri = li_splat(-1);
+}
+
+/* Put *ray with its hit so far into lane k, if it can enter the scene box; returns whether it did. */
+RT_FN int packet_set_ray(RayPacket *p, HitPacket *h, int k, const Ray *ray, const Hit *hit, float4 scene_min,
+                         float4 scene_max)
+{
+    float t_enter, t_exit;
+    if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
+        return 0;
+    lf_set(&p->ox, k, ray->o.x);
+    lf_set(&p->oy, k, ray->o.y);
+    lf_set(&p->oz, k, ray->o.z);
+    lf_set(&p->dx, k, ray->d.x);
+    lf_set(&p->dy, k, ray->d.y);
+    lf_set(&p->dz, k, ray->d.z);
+    lf_set(&p->ix, k, bvh_inverse(ray->d.x));
+    lf_set(&p->iy, k, bvh_inverse(ray->d.y));
+    lf_set(&p->iz, k, bvh_inverse(ray->d.z));
+    lf_set(&p->tmin, k, ray->tmin);
+    lf_set(&h->t, k, hit->t);
+    lf_set(&h->u, k, hit->u);
+    lf_set(&h->v, k, hit->v);
+    li_set(&h->tri, k, hit->tri);
+    return 1;
+}
+
+/* The hit record of lane k. */
+RT_FN void packet_get_hit(const HitPacket *h, int k, Hit *hit)
+{
+    hit->t = lf_get(h->t, k);
+    hit->u = lf_get(h->u, k);
+    hit->v = lf_get(h->v, k);
+    hit->tri = li_get(h->tri, k);
+}
+
+/* One slab: distances of the planes lo and hi, near in *t0 and far in *t1 (min/max, so the sign
+ * of the direction needs no test). */
+RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef *t0, lanef *t1)
+{
+    lanef ta = lf_mul(lf_sub(lf_splat(lo), o), inv);
+    lanef tb = lf_mul(lf_sub(lf_splat(hi), o), inv);
+    *t0 = lf_min(ta, tb);
+    *t1 = lf_max(ta, tb);
+}
+
+/* Lanes whose segment [tmin, t_cut] meets the box [lo, hi] (inclusive at t_cut, as rt_bvh.h);
+ * their entry distances in *t_near. */
+RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 hi, lanef *t_near)
+{
+    lanef nx, fx, ny, fy, nz, fz;
+    packet_slab(lo.x, hi.x, p->ox, p->ix, &nx, &fx);
+    packet_slab(lo.y, hi.y, p->oy, p->iy, &ny, &fy);
+    packet_slab(lo.z, hi.z, p->oz, p->iz, &nz, &fz);
+    lanef t0 = lf_max(lf_max(nx, ny), lf_max(nz, p->tmin));
+    lanef t1 = lf_min(lf_min(fx, fy), fz);
+#if RT_CONSERVATIVE
+    /* widen the far distance by its rounding bound, whichever its sign */
+    t1 = lf_max(lf_mul(t1, lf_splat(1.0f + RT_T_PAD)), lf_mul(t1, lf_splat(1.0f - RT_T_PAD)));
+#endif
+    *t_near = t0;
+    return lf_le(t0, lf_min(t1, t_cut));
+}
+
+/* Moller-Trumbore (intersect_ray_tri_moller's arithmetic) on every lane against one triangle:
+ * v0 and its edges e1 = v1 - v0, e2 = v2 - v0 as the layout stores them. Updates the lanes that
+ * hit nearer than their hit so far and beyond tmin; returns those lanes. */
+RT_FN lanei packet_tri_moller(const RayPacket *p, HitPacket *h, float3 v0, float3 e1, float3 e2, int tri)
+{
+    lanef px = lf_cross1(p->dy, e2.z, p->dz, e2.y);
+    lanef py = lf_cross1(p->dz, e2.x, p->dx, e2.z);
+    lanef pz = lf_cross1(p->dx, e2.y, p->dy, e2.x);
+    lanef det = lf_dot3s(px, py, pz, e1.x, e1.y, e1.z);
+    lanef inv_det = lf_div(1.0f, det);
+    lanef sx = lf_sub(p->ox, lf_splat(v0.x));
+    lanef sy = lf_sub(p->oy, lf_splat(v0.y));
+    lanef sz = lf_sub(p->oz, lf_splat(v0.z));
+    lanef u = lf_mul(lf_dot3(sx, sy, sz, px, py, pz), inv_det);
+    lanef qx = lf_cross1(sy, e1.z, sz, e1.y);
+    lanef qy = lf_cross1(sz, e1.x, sx, e1.z);
+    lanef qz = lf_cross1(sx, e1.y, sy, e1.x);
+    lanef v = lf_mul(lf_dot3(p->dx, p->dy, p->dz, qx, qy, qz), inv_det);
+    lanef t = lf_mul(lf_dot3s(qx, qy, qz, e2.x, e2.y, e2.z), inv_det);
+    lanef zero = lf_splat(0.0f), one = lf_splat(1.0f);
+    lanei m = li_and(li_and(lf_le(zero, u), lf_le(u, one)), li_and(lf_le(zero, v), lf_le(lf_add(u, v), one)));
+    m = li_and(m, li_and(lf_lt(p->tmin, t), lf_lt(t, h->t)));
+    m = li_andnot(m, lf_eq(det, zero));
+    h->t = lf_select(h->t, t, m);
+    h->u = lf_select(h->u, u, m);
+    h->v = lf_select(h->v, v, m);
+    h->tri = li_select(h->tri, li_splat(tri), m);
+    return m;
+}
+
+#if RT_ISECT != RT_ISECT_MOLLER
+/* The other tests, lane by lane: the lane's ray rebuilt as make_ray builds it, the shared test on
+ * triangle `tri`, the lane updated where it hit. */
+RT_FN lanei packet_tri_lanewise(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h, lanei live, int tri)
+{
+    lanei m = li_splat(0);
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (!li_get(live, k))
+            continue;
+        Ray ray = make_ray(f3(lf_get(p->ox, k), lf_get(p->oy, k), lf_get(p->oz, k)),
+                           f3(lf_get(p->dx, k), lf_get(p->dy, k), lf_get(p->dz, k)), lf_get(p->tmin, k), RT_INF);
+        Hit hit;
+        packet_get_hit(h, k, &hit);
+        if (intersect_tri(RT_SCENE_ARGS, &ray, tri, &hit)) {
+            lf_set(&h->t, k, hit.t);
+            lf_set(&h->u, k, hit.u);
+            lf_set(&h->v, k, hit.v);
+            li_set(&h->tri, k, hit.tri);
+            li_set(&m, k, -1);
+        }
+    }
+    return m;
+}
+#endif
+
+/* Test the triangles of leaf `leaf` on the lanes in `live`; returns the lanes that hit one. */
+RT_FN lanei packet_leaf(RT_SCENE_PARAMS, int leaf, const RayPacket *p, HitPacket *h, lanei live)
+{
+    int bits = ~leaf;
+    int row = bits >> PBVH_LEAF_BITS;
+    int count = bits & ((1 << PBVH_LEAF_BITS) - 1);
+    lanei found = li_splat(0);
+    for (int i = 0; i < count; ++i, row += PBVH_TRI_ROWS) {
+        float4 a = load_node_data(row);
+#if RT_ISECT == RT_ISECT_MOLLER
+        float4 e1 = load_node_data(row + 1);
+        float4 e2 = load_node_data(row + 2);
+        found = li_or(found, packet_tri_moller(p, h, xyz(a), xyz(e1), xyz(e2), rt_as_int(a.w)));
+#else
+        found = li_or(found, packet_tri_lanewise(RT_SCENE_ARGS, p, h, live, rt_as_int(a.w)));
+#endif
+    }
+    return found;
+}
+
+/* Closest hits of the packet's rays (any_hit: each lane's first hit, stopping when every lane has
+ * one). `live`: the lanes that hold a ray. *h holds each lane's hit so far on entry. */
+RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h, lanei live, int any_hit)
+{
+    int stack[RT_STACK_SIZE];
+    int sp = 0;
+    int ref = 0;
+    /* Box tests cull beyond t_cut: the closest hit so far, or -inf for a lane that is done */
+    lanef t_cut = h->t;
+    for (;;) {
+        /* Inner nodes: enter the children some lane hits, the one nearest to a lane first */
+        while (ref >= 0) {
+            int base = PBVH_NODE_ROWS * ref;
+            float4 lo0 = load_node_data(base);
+            float4 hi0 = load_node_data(base + 1);
+            float4 lo1 = load_node_data(base + 2);
+            float4 hi1 = load_node_data(base + 3);
+            lanef n0, n1;
+            lanei m0 = packet_hits_box(p, t_cut, lo0, hi0, &n0);
+            lanei m1 = packet_hits_box(p, t_cut, lo1, hi1, &n1);
+            int a0 = lane_any(m0), a1 = lane_any(m1);
+            int c0 = rt_as_int(lo0.w), c1 = rt_as_int(lo1.w);
+            if (a0 && a1) {
+                lanef inf = lf_splat(RT_INF);
+                int near0 = lf_hmin(lf_select(inf, n0, m0)) <= lf_hmin(lf_select(inf, n1, m1));
+                stack[sp++] = near0 ? c1 : c0;
+                ref = near0 ? c0 : c1;
+            } else if (a0 || a1) {
+                ref = a0 ? c0 : c1;
+            } else {
+                if (sp == 0)
+                    return;
+                ref = stack[--sp];
+            }
+        }
+        lanei found = packet_leaf(RT_SCENE_ARGS, ref, p, h, live);
+        if (any_hit) {
+            live = li_andnot(live, found);
+            if (!lane_any(live))
+                return;
+            t_cut = lf_select(lf_splat(-RT_INF), h->t, live);
+        } else {
+            t_cut = h->t;
+        }
+        if (sp == 0)
+            return;
+        ref = stack[--sp];
+    }
+}
+
+/* One ray through the packet traversal (lane 0; the others empty): what trace_closest and
+ * trace_any use with this traversal (shading, shadow and secondary rays). */
+RT_FN void traverse_bvh_packet_ray(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
+                                   int any_hit)
+{
+    RayPacket p;
+    HitPacket h;
+    packet_clear(&p, &h);
+    if (!packet_set_ray(&p, &h, 0, ray, hit, scene_min, scene_max))
+        return;
+    lanei live = li_splat(0);
+    li_set(&live, 0, -1);
+    traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, any_hit);
+    packet_get_hit(&h, 0, hit);
+}
+
+#endif /* RT_BVH_PACKET_H */
