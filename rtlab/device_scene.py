@@ -61,15 +61,20 @@ def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=Non
 # a few times the exact test's. Far from the origin it would grow with the offset (family 1 of the
 # robustness suite: a small sphere at 1.5e5 leaks 19 % instead of 16 % with Moller-Trumbore).
 NEAR_ORIGIN_EXTENTS = 4.0
+# ... and whose coordinates times the largest inverse direction (2^64, rt_bvh.h) stay finite in
+# float32, so that b inv cannot overflow and b inv - o inv cannot be inf - inf
+FUSED_BOX_MAX_COORD = 1e18
 
 
 def near_origin(scene: Scene) -> bool:
-    """Whether the scene lies near the origin compared with its size (NEAR_ORIGIN_EXTENTS)."""
+    """Whether the scene lies near the origin compared with its size (NEAR_ORIGIN_EXTENTS) and its
+    coordinates are below FUSED_BOX_MAX_COORD."""
     if scene.vertices.size == 0:
         return False
     b = scene.bounds().astype(np.float64)
     extent = float((b[1] - b[0]).max())
-    return bool(np.all(np.isfinite(b)) and extent > 0 and np.abs(b).max() <= NEAR_ORIGIN_EXTENTS * extent)
+    return bool(np.all(np.isfinite(b)) and extent > 0
+                and np.abs(b).max() <= min(NEAR_ORIGIN_EXTENTS * extent, FUSED_BOX_MAX_COORD))
 
 
 def scene_features(scene: Scene, stack_size: int) -> SceneFeatures:

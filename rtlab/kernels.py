@@ -164,7 +164,7 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
-    if variant.traversal == "bvh":
+    if variant.traversal in ("bvh", "bvh-packet"):
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.traversal == "bvh-packet":
         defines["RT_LANES"] = PACKET_LANES

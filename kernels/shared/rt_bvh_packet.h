@@ -35,63 +35,60 @@
 #define PBVH_NODE_ROWS 4
 #define PBVH_TRI_ROWS 3
 
-/* The rays of a packet. A lane without a ray (past the end, a NaN/Inf or zero direction, a miss
- * of the scene box) has o = 0, d = 0, inv = 1 and tmin = +inf: it enters no box and hits nothing. */
+/* The fused slab form b inv - o inv (rt_bvh.h's RT_BVH_BOX_FMA; the loader sets that for scenes
+ * near the origin whose coordinates times 2^64 stay finite, so no lane can make inf - inf) */
+#if defined(RT_BVH_BOX_FMA) && RT_BVH_BOX_FMA && !RT_CONSERVATIVE
+#define RT_PACKET_BOX_FMA 1
+#else
+#define RT_PACKET_BOX_FMA 0
+#endif
+
+/* The rays of a packet. A lane without a ray (past the end, a NaN/Inf or zero direction) has o = 0,
+ * d = 0, inv = 1 and tmin = +inf: it enters no box and hits nothing. */
 typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;
     lanef ix, iy, iz;              /* bvh_inverse(d): finite */
+#if RT_PACKET_BOX_FMA
+    lanef oix, oiy, oiz;           /* o * inv, for the fused slab form */
+#endif
     lanef tmin;
 } RayPacket;
 
-/* Closest hits so far; t is +-inf... never NaN. A lane without a ray keeps t = -inf. */
+/* Closest hits so far, never NaN; a lane without a ray keeps t = -inf. */
 typedef struct {
     lanef t, u, v;
     lanei tri;
 } HitPacket;
 
-/* Every lane empty. */
-RT_FN void packet_clear(RayPacket *p, HitPacket *h)
+/* The packet of rays o + t d, t in (tmin, tmax), lane by lane (all lanes vector operations);
+ * returns the lanes that hold a ray that can enter a box (ray_can_enter's rule). */
+RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz,
+                        lanef tmin, lanef tmax)
 {
-    lanef zero = lf_splat(0.0f);
-    p->ox = zero;
-    p->oy = zero;
-    p->oz = zero;
-    p->dx = zero;
-    p->dy = zero;
-    p->dz = zero;
-    p->ix = lf_splat(1.0f);
-    p->iy = p->ix;
-    p->iz = p->ix;
-    p->tmin = lf_splat(RT_INF);
-    h->t = lf_splat(-RT_INF);
+    lanef zero = lf_splat(0.0f), one = lf_splat(1.0f);
+    lanei live = li_and(li_and(lf_finite(ox), lf_finite(oy)), li_and(lf_finite(oz), lf_finite(dx)));
+    live = li_and(live, li_and(li_and(lf_finite(dy), lf_finite(dz)), lf_lt(zero, lf_dot3(dx, dy, dz, dx, dy, dz))));
+    p->ox = lf_select(zero, ox, live);
+    p->oy = lf_select(zero, oy, live);
+    p->oz = lf_select(zero, oz, live);
+    p->dx = lf_select(zero, dx, live);
+    p->dy = lf_select(zero, dy, live);
+    p->dz = lf_select(zero, dz, live);
+    p->ix = lf_select(one, lf_div(1.0f, lf_away_from_zero(dx, RT_BVH_MIN_DIR)), live);
+    p->iy = lf_select(one, lf_div(1.0f, lf_away_from_zero(dy, RT_BVH_MIN_DIR)), live);
+    p->iz = lf_select(one, lf_div(1.0f, lf_away_from_zero(dz, RT_BVH_MIN_DIR)), live);
+#if RT_PACKET_BOX_FMA
+    p->oix = lf_mul(p->ox, p->ix);
+    p->oiy = lf_mul(p->oy, p->iy);
+    p->oiz = lf_mul(p->oz, p->iz);
+#endif
+    p->tmin = lf_select(lf_splat(RT_INF), tmin, live);
+    h->t = lf_select(lf_splat(-RT_INF), tmax, live);
     h->u = zero;
     h->v = zero;
     h->tri = li_splat(-1);
-}
-
-/* Put *ray with its hit so far into lane k, if it can enter the scene box; returns whether it did. */
-RT_FN int packet_set_ray(RayPacket *p, HitPacket *h, int k, const Ray *ray, const Hit *hit, float4 scene_min,
-                         float4 scene_max)
-{
-    float t_enter, t_exit;
-    if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
-        return 0;
-    lf_set(&p->ox, k, ray->o.x);
-    lf_set(&p->oy, k, ray->o.y);
-    lf_set(&p->oz, k, ray->o.z);
-    lf_set(&p->dx, k, ray->d.x);
-    lf_set(&p->dy, k, ray->d.y);
-    lf_set(&p->dz, k, ray->d.z);
-    lf_set(&p->ix, k, bvh_inverse(ray->d.x));
-    lf_set(&p->iy, k, bvh_inverse(ray->d.y));
-    lf_set(&p->iz, k, bvh_inverse(ray->d.z));
-    lf_set(&p->tmin, k, ray->tmin);
-    lf_set(&h->t, k, hit->t);
-    lf_set(&h->u, k, hit->u);
-    lf_set(&h->v, k, hit->v);
-    li_set(&h->tri, k, hit->tri);
-    return 1;
+    return live;
 }
 
 /* The hit record of lane k. */
@@ -104,11 +101,16 @@ RT_FN void packet_get_hit(const HitPacket *h, int k, Hit *hit)
 }
 
 /* One slab: distances of the planes lo and hi, near in *t0 and far in *t1 (min/max, so the sign
- * of the direction needs no test). */
-RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef *t0, lanef *t1)
+ * of the direction needs no test). oi = o * inv for the fused form. */
+RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef oi, lanef *t0, lanef *t1)
 {
+#if RT_PACKET_BOX_FMA
+    lanef ta = lf_fms(lo, inv, oi);
+    lanef tb = lf_fms(hi, inv, oi);
+#else
     lanef ta = lf_mul(lf_sub(lf_splat(lo), o), inv);
     lanef tb = lf_mul(lf_sub(lf_splat(hi), o), inv);
+#endif
     *t0 = lf_min(ta, tb);
     *t1 = lf_max(ta, tb);
 }
@@ -118,9 +120,15 @@ RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef *t0, lanef 
 RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 hi, lanef *t_near)
 {
     lanef nx, fx, ny, fy, nz, fz;
-    packet_slab(lo.x, hi.x, p->ox, p->ix, &nx, &fx);
-    packet_slab(lo.y, hi.y, p->oy, p->iy, &ny, &fy);
-    packet_slab(lo.z, hi.z, p->oz, p->iz, &nz, &fz);
+#if RT_PACKET_BOX_FMA
+    packet_slab(lo.x, hi.x, p->ox, p->ix, p->oix, &nx, &fx);
+    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oiy, &ny, &fy);
+    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oiz, &nz, &fz);
+#else
+    packet_slab(lo.x, hi.x, p->ox, p->ix, p->ox, &nx, &fx);
+    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oy, &ny, &fy);
+    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oz, &nz, &fz);
+#endif
     lanef t0 = lf_max(lf_max(nx, ny), lf_max(nz, p->tmin));
     lanef t1 = lf_min(lf_min(fx, fy), fz);
 #if RT_CONSERVATIVE
@@ -257,19 +265,29 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
 }
 
 /* One ray through the packet traversal (lane 0; the others empty): what trace_closest and
- * trace_any use with this traversal (shading, shadow and secondary rays). */
+ * trace_any use with this traversal (shading, shadow and secondary rays). *hit holds the hit so
+ * far; it changes only where the traversal finds a nearer one. */
 RT_FN void traverse_bvh_packet_ray(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
                                    int any_hit)
 {
+    lanef zero = lf_splat(0.0f);
+    lanef ox = zero, oy = zero, oz = zero, dx = zero, dy = zero, dz = zero, tmin = zero, tmax = zero;
+    lf_set(&ox, 0, ray->o.x);
+    lf_set(&oy, 0, ray->o.y);
+    lf_set(&oz, 0, ray->o.z);
+    lf_set(&dx, 0, ray->d.x);
+    lf_set(&dy, 0, ray->d.y);
+    lf_set(&dz, 0, ray->d.z);
+    lf_set(&tmin, 0, ray->tmin);
+    lf_set(&tmax, 0, hit->t);
     RayPacket p;
     HitPacket h;
-    packet_clear(&p, &h);
-    if (!packet_set_ray(&p, &h, 0, ray, hit, scene_min, scene_max))
+    lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);
+    if (!lane_any(live))
         return;
-    lanei live = li_splat(0);
-    li_set(&live, 0, -1);
     traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, any_hit);
-    packet_get_hit(&h, 0, hit);
+    if (li_get(h.tri, 0) >= 0)
+        packet_get_hit(&h, 0, hit);
 }
 
 #endif /* RT_BVH_PACKET_H */

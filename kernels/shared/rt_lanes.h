@@ -79,6 +79,26 @@ RT_FN lanef lf_cross2(lanef a, lanef b, lanef c, lanef d)    /* a b - c d */
     RT_LANE_LOOP r.v[k_] = a.v[k_] * b.v[k_] - c.v[k_] * d.v[k_];
     return r;
 }
+RT_FN lanef lf_fms(float a, lanef b, lanef c) { lanef r; RT_LANE_LOOP r.v[k_] = rt_fma(a, b.v[k_], -c.v[k_]); return r; }
+RT_FN lanei lf_finite(lanef a) { lanei r; RT_LANE_LOOP r.v[k_] = isfinite(a.v[k_]) ? -1 : 0; return r; }
+/* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
+RT_FN lanef lf_away_from_zero(lanef d, float tiny)
+{
+    lanef r;
+    RT_LANE_LOOP r.v[k_] = fabsf(d.v[k_]) > tiny ? d.v[k_] : copysignf(tiny, d.v[k_]);
+    return r;
+}
+/* Lanes 0 .. count - 1 of x, y, z, w from p[first ..] (float4 rows); the others 0 */
+RT_FN void lanes_load_rows(RT_GLOBAL const float4 *p, int first, int count, lanef *x, lanef *y, lanef *z, lanef *w)
+{
+    RT_LANE_LOOP {
+        float4 a = k_ < count ? p[first + k_] : make_float4(0.0f, 0.0f, 0.0f, 0.0f);
+        x->v[k_] = a.x;
+        y->v[k_] = a.y;
+        z->v[k_] = a.z;
+        w->v[k_] = a.w;
+    }
+}
 #else /* OpenCL C: vector types and operators; min/max/select/any map to single instructions */
 #if RT_LANES == 4
 typedef float4 lanef;
@@ -107,7 +127,20 @@ RT_FN lanei li_splat(int s) { return (lanei)(s); }
 RT_FN lanei li_and(lanei a, lanei b) { return a & b; }
 RT_FN lanei li_andnot(lanei a, lanei b) { return a & ~b; }
 RT_FN lanei li_or(lanei a, lanei b) { return a | b; }
-RT_FN int lane_any(lanei m) { return any(m); }
+/* OR of the lanes, sign bit tested: branch-free (PoCL's any() tests lane after lane) */
+RT_FN int lane_any(lanei m)
+{
+#if RT_LANES == 16
+    int8 h = m.lo | m.hi;
+    int4 q = h.lo | h.hi;
+#elif RT_LANES == 8
+    int4 q = m.lo | m.hi;
+#else
+    int4 q = m;
+#endif
+    int2 p = q.lo | q.hi;
+    return (p.x | p.y) < 0;
+}
 RT_FN float lf_hmin(lanef a)
 {
 #if RT_LANES == 16
@@ -131,6 +164,37 @@ RT_FN float lf_get(lanef a, int k) { return ((float *)&a)[k]; }
 RT_FN int li_get(lanei a, int k) { return ((int *)&a)[k]; }
 RT_FN void lf_set(lanef *a, int k, float s) { ((float *)a)[k] = s; }
 RT_FN void li_set(lanei *a, int k, int s) { ((int *)a)[k] = s; }
+RT_FN lanef lf_fms(float a, lanef b, lanef c) { return fma((lanef)(a), b, -c); }
+RT_FN lanei lf_finite(lanef a) { return isfinite(a); }
+/* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
+RT_FN lanef lf_away_from_zero(lanef d, float tiny) { return select(copysign((lanef)(tiny), d), d, fabs(d) > tiny); }
+/* Lanes 0 .. count - 1 of x, y, z, w from p[first ..] (float4 rows); the others 0. A whole packet
+ * (8 lanes) is four 8-float loads and shuffles, not a store per lane followed by a vector load. */
+RT_FN void lanes_load_rows(__global const float4 *p, int first, int count, lanef *x, lanef *y, lanef *z, lanef *w)
+{
+#if RT_LANES == 8
+    if (count == RT_LANES) {
+        __global const float *f = (__global const float *)(p + first);
+        float8 a = vload8(0, f), b = vload8(1, f), c = vload8(2, f), d = vload8(3, f);   /* 2 rows each */
+        *x = (float8)(a.s04, b.s04, c.s04, d.s04);
+        *y = (float8)(a.s15, b.s15, c.s15, d.s15);
+        *z = (float8)(a.s26, b.s26, c.s26, d.s26);
+        *w = (float8)(a.s37, b.s37, c.s37, d.s37);
+        return;
+    }
+#endif
+    *x = (lanef)(0.0f);
+    *y = *x;
+    *z = *x;
+    *w = *x;
+    for (int k = 0; k < count; ++k) {
+        float4 a = p[first + k];
+        lf_set(x, k, a.x);
+        lf_set(y, k, a.y);
+        lf_set(z, k, a.z);
+        lf_set(w, k, a.w);
+    }
+}
 #endif
 
 

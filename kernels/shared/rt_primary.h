@@ -32,25 +32,27 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
 RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBAL const float4 *origins,
                         RT_GLOBAL const float4 *directions, RT_GLOBAL float4 *hits, int first, int n_rays)
 {
+    int count = n_rays - first < RT_LANES ? n_rays - first : RT_LANES;
+    lanef ox, oy, oz, tmin, dx, dy, dz, tmax;
+    lanes_load_rows(origins, first, count, &ox, &oy, &oz, &tmin);
+    lanes_load_rows(directions, first, count, &dx, &dy, &dz, &tmax);
     RayPacket p;
     HitPacket h;
-    packet_clear(&p, &h);
-    lanei live = li_splat(0);
-    for (int k = 0; k < RT_LANES && first + k < n_rays; ++k) {
-        float4 o = origins[first + k], d = directions[first + k];
-        Ray ray = make_ray(xyz(o), xyz(d), o.w, d.w);
-        Hit miss = make_miss(ray.tmax);
-        li_set(&live, k, packet_set_ray(&p, &h, k, &ray, &miss, frame->scene_min, frame->scene_max) ? -1 : 0);
-    }
+    lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);   /* lanes past count: d = 0 */
     if (lane_any(live))
         traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
-    for (int k = 0; k < RT_LANES && first + k < n_rays; ++k) {
-        float4 o = origins[first + k], d = directions[first + k];
-        Ray ray = make_ray(xyz(o), xyz(d), o.w, d.w);
-        Hit hit = make_miss(ray.tmax);
-        if (li_get(live, k))
+    /* Unrolled, so that each lane is read by a constant index (an extract), not through memory */
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (k >= count)
+            break;
+        Hit hit = make_miss(lf_get(tmax, k));
+        if (li_get(live, k)) {
             packet_get_hit(&h, k, &hit);
-        refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+            Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
+                               f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
+            refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+        }
         hits[first + k] = pack_hit(hit);
     }
 }
