@@ -48,7 +48,7 @@
 typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;
-    lanef ix, iy, iz;              /* bvh_inverse(d): finite */
+    lanef ix, iy, iz;              /* bvh_inverse(d), finite; with RT_CONSERVATIVE 1/d */
 #if RT_PACKET_BOX_FMA
     lanef oix, oiy, oiz;           /* o * inv, for the fused slab form */
 #endif
@@ -75,9 +75,15 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     p->dx = lf_select(zero, dx, live);
     p->dy = lf_select(zero, dy, live);
     p->dz = lf_select(zero, dz, live);
+#if RT_CONSERVATIVE
+    p->ix = lf_select(one, lf_div(1.0f, dx), live);
+    p->iy = lf_select(one, lf_div(1.0f, dy), live);
+    p->iz = lf_select(one, lf_div(1.0f, dz), live);
+#else
     p->ix = lf_select(one, lf_div(1.0f, lf_away_from_zero(dx, RT_BVH_MIN_DIR)), live);
     p->iy = lf_select(one, lf_div(1.0f, lf_away_from_zero(dy, RT_BVH_MIN_DIR)), live);
     p->iz = lf_select(one, lf_div(1.0f, lf_away_from_zero(dz, RT_BVH_MIN_DIR)), live);
+#endif
 #if RT_PACKET_BOX_FMA
     p->oix = lf_mul(p->ox, p->ix);
     p->oiy = lf_mul(p->oy, p->iy);
@@ -107,6 +113,11 @@ RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef oi, lanef *
 #if RT_PACKET_BOX_FMA
     lanef ta = lf_fms(lo, inv, oi);
     lanef tb = lf_fms(hi, inv, oi);
+#elif RT_CONSERVATIVE
+    /* inv = 1/d, infinite for a zero component: a ray in the plane of lo or hi gives 0 * inf, whose
+     * NaN becomes the unbounded side, so the ray stays in the slab (clip_slab's fmin/fmax rule) */
+    lanef ta = lf_nan_to(lf_mul(lf_sub(lf_splat(lo), o), inv), -RT_INF);
+    lanef tb = lf_nan_to(lf_mul(lf_sub(lf_splat(hi), o), inv), RT_INF);
 #else
     lanef ta = lf_mul(lf_sub(lf_splat(lo), o), inv);
     lanef tb = lf_mul(lf_sub(lf_splat(hi), o), inv);

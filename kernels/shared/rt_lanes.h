@@ -79,6 +79,7 @@ RT_FN lanef lf_cross2(lanef a, lanef b, lanef c, lanef d)    /* a b - c d */
     RT_LANE_LOOP r.v[k_] = a.v[k_] * b.v[k_] - c.v[k_] * d.v[k_];
     return r;
 }
+RT_FN lanef lf_nan_to(lanef a, float s) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_] != a.v[k_] ? s : a.v[k_]; return r; }
 RT_FN lanef lf_fms(float a, lanef b, lanef c) { lanef r; RT_LANE_LOOP r.v[k_] = rt_fma(a, b.v[k_], -c.v[k_]); return r; }
 RT_FN lanei lf_finite(lanef a) { lanei r; RT_LANE_LOOP r.v[k_] = isfinite(a.v[k_]) ? -1 : 0; return r; }
 /* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
@@ -164,6 +165,7 @@ RT_FN float lf_get(lanef a, int k) { return ((float *)&a)[k]; }
 RT_FN int li_get(lanei a, int k) { return ((int *)&a)[k]; }
 RT_FN void lf_set(lanef *a, int k, float s) { ((float *)a)[k] = s; }
 RT_FN void li_set(lanei *a, int k, int s) { ((int *)a)[k] = s; }
+RT_FN lanef lf_nan_to(lanef a, float s) { return select(a, (lanef)(s), isnan(a)); }
 RT_FN lanef lf_fms(float a, lanef b, lanef c) { return fma((lanef)(a), b, -c); }
 RT_FN lanei lf_finite(lanef a) { return isfinite(a); }
 /* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
