@@ -37,9 +37,9 @@ DEFAULT_PRIMARY_STEP = "00_primary"
 def primary_step(variant: "Variant") -> str:
     """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant: lab step
     01's kernels when the variant moves constants or the ray (only they declare those placements)."""
-    if variant.traversal == "bvh-packet" and variant.needs_memory_kernels():
-        raise VariantError("the bvh-packet traversal takes its rays in packets through lab step 00's kernels, "
-                           "which keep constants in constant memory and the ray in registers")
+    if variant.traversal == "bvh-packet" and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
+        raise VariantError("the bvh-packet traversal takes rays (pixels of a row) in packets through lab step 00's "
+                           "kernels, which keep constants in constant memory and the ray in registers")
     step = PRIMARY_STEPS.get(variant.traversal)
     if step is not None and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
         raise VariantError(f"{variant.traversal} traversal has its own kernels ({step}), which keep constants "
@@ -177,7 +177,8 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
 
 
 def rays_per_work_item(variant: Variant) -> int:
-    """Rays one work-item of trace_rays takes (the launch covers n / this work-items)."""
+    """Rays one work-item of lab step 00's trace_rays takes, and pixels of a row one work-item of its
+    render_primary takes (the launches cover n / this work-items)."""
     return PACKET_LANES if variant.traversal == "bvh-packet" else 1
 
 

@@ -25,6 +25,12 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).
 RT_KERNEL void render_primary(RT_SCENE_PARAMS, unsigned int *__restrict__ pixels, float4 *__restrict__ hits)
 {
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES pixels of a row a thread, traced together
+    render_packet(RT_SCENE_ARGS, &c_frame, c_lights, c_materials, (blockIdx.x * blockDim.x + threadIdx.x) * RT_LANES,
+                  blockIdx.y * blockDim.y + threadIdx.y, pixels, hits);
+    return;
+#endif
     int x, y;
     block_pixel(blockIdx.x, blockIdx.y, blockDim.x, blockDim.y, threadIdx.x, threadIdx.y, &x, &y);
     if (x >= c_frame.width || y >= c_frame.height)

@@ -97,6 +97,24 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     return live;
 }
 
+/* The packet of rays[0 .. count - 1] (count <= RT_LANES). */
+RT_FN lanei packet_of_rays(RayPacket *p, HitPacket *h, const Ray *rays, int count)
+{
+    lanef zero = lf_splat(0.0f);
+    lanef ox = zero, oy = zero, oz = zero, dx = zero, dy = zero, dz = zero, tmin = zero, tmax = zero;
+    for (int k = 0; k < count; ++k) {
+        lf_set(&ox, k, rays[k].o.x);
+        lf_set(&oy, k, rays[k].o.y);
+        lf_set(&oz, k, rays[k].o.z);
+        lf_set(&dx, k, rays[k].d.x);
+        lf_set(&dy, k, rays[k].d.y);
+        lf_set(&dz, k, rays[k].d.z);
+        lf_set(&tmin, k, rays[k].tmin);
+        lf_set(&tmax, k, rays[k].tmax);
+    }
+    return packet_init(p, h, ox, oy, oz, dx, dy, dz, tmin, tmax);
+}
+
 /* The hit record of lane k. */
 RT_FN void packet_get_hit(const HitPacket *h, int k, Hit *hit)
 {
@@ -281,19 +299,11 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
 RT_FN void traverse_bvh_packet_ray(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
                                    int any_hit)
 {
-    lanef zero = lf_splat(0.0f);
-    lanef ox = zero, oy = zero, oz = zero, dx = zero, dy = zero, dz = zero, tmin = zero, tmax = zero;
-    lf_set(&ox, 0, ray->o.x);
-    lf_set(&oy, 0, ray->o.y);
-    lf_set(&oz, 0, ray->o.z);
-    lf_set(&dx, 0, ray->d.x);
-    lf_set(&dy, 0, ray->d.y);
-    lf_set(&dz, 0, ray->d.z);
-    lf_set(&tmin, 0, ray->tmin);
-    lf_set(&tmax, 0, hit->t);
+    Ray cut = *ray;
+    cut.tmax = hit->t;
     RayPacket p;
     HitPacket h;
-    lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);
+    lanei live = packet_of_rays(&p, &h, &cut, 1);
     if (!lane_any(live))
         return;
     traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, any_hit);

@@ -75,6 +75,44 @@ RT_FN unsigned int render_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
     return render_ray(RT_SCENE_ARGS, frame, lights, materials, &ray, hit);
 }
 
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* The work of render_primary with the packet traversal: pixels x0 .. x0 + RT_LANES - 1 of row y
+ * (those inside the frame), their camera rays traced as one packet, each then shaded and written
+ * as render_pixel's would be. */
+RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
+                         RT_CONST const RtMaterial *materials, int x0, int y, RT_GLOBAL unsigned int *pixels,
+                         RT_GLOBAL float4 *hits)
+{
+    if (x0 >= frame->width || y >= frame->height)
+        return;
+    int count = frame->width - x0 < RT_LANES ? frame->width - x0 : RT_LANES;
+    Ray rays[RT_LANES];
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k)
+        rays[k] = camera_ray(frame, k < count ? x0 + k : x0, y);
+    RayPacket p;
+    HitPacket h;
+    lanei live = packet_of_rays(&p, &h, rays, count);
+    if (lane_any(live))
+        traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (k >= count)
+            break;
+        Hit hit = make_miss(rays[k].tmax);
+        if (li_get(live, k)) {
+            packet_get_hit(&h, k, &hit);
+            refine_hit_t(RT_SCENE_ARGS, &rays[k], &hit);
+        }
+        int i = y * frame->width + x0 + k;
+        pixels[i] = pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &rays[k], &hit));
+#if RT_WRITE_HITS
+        hits[i] = pack_hit(hit);
+#endif
+    }
+}
+#endif
+
 /* Bits 0, 2, 4, ... of v packed together (Morton decode). */
 RT_FN int compact_even_bits(int v)
 {
