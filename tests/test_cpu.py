@@ -217,13 +217,14 @@ def test_bench_cpu_against_embree(backend):
     from rtlab.benches.rays import make_rays
     batch = make_rays("default", "primary", 48)
     embree = EmbreeTracer(batch.scene.vertices, batch.scene.faces)
-    tri, t, seconds = embree.trace(batch.origins, batch.directions)
+    tri, t, seconds, cpu = embree.trace(batch.origins, batch.directions)
     c = compare_hits(batch.reference, tri[batch.check_index], t[batch.check_index], batch.scene.vertices,
                      batch.scene.faces, batch.origins[batch.check_index], batch.directions[batch.check_index])
-    assert c.n_mismatch == 0 and seconds > 0
+    assert c.n_mismatch == 0 and seconds > 0 and cpu >= 0
     row = bench_cpu(batch, backend, PACKET, rounds=2, embree=embree)
     assert len(row.rtlab_ms) == len(row.embree_ms) == 2
     assert row.rtlab_mrays > 0 and row.embree_mrays > 0 and row.threads >= 1
+    assert len(row.rtlab_cpu_ms) == len(row.embree_cpu_ms) == 2 and min(row.rtlab_cpu_ms) >= 0
     assert row.rtlab_error["mismatches"] == 0 and row.embree_error["mismatches"] == 0
     assert row.rtlab_error["rays"] == batch.check_index.size
     md = cpu_markdown([row], "rtlab bench cpu", 2)
