@@ -25,6 +25,7 @@ RAY_ORDERS = {"rows": 0, "morton": 1}
 MEMORY_STEP = "01_memory"
 TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.tracing.TRACE_BLOCK)
 PACKET_LANES = 8          # rays a work-item of the bvh-packet traversal (RT_LANES): one AVX register
+PACKET_WIDTH = 4          # children a node of its BVH (RT_PACKET_WIDTH, rtlab/accel/bvh_packet.py)
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -168,6 +169,7 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.traversal == "bvh-packet":
         defines["RT_LANES"] = PACKET_LANES
+        defines["RT_PACKET_WIDTH"] = PACKET_WIDTH
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block
         defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]

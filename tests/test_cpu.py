@@ -15,7 +15,7 @@ import pytest
 
 import rtlab
 from rtlab.accel.bvh import LEAF_BITS, build_bvh
-from rtlab.accel.bvh_packet import NODE_ROWS, TRI_ROWS, packet_node_data
+from rtlab.accel.bvh_packet import EMPTY, TRI_ROWS, node_rows, packet_node_data
 from rtlab.check import check_render
 from rtlab.errors import VariantError
 from rtlab.kernels import PACKET_LANES, SceneFeatures, Variant, build_defines, primary_step, rays_per_work_item
@@ -121,25 +121,40 @@ def test_render_any_width_and_the_single_ray_path(backend, default_scene):
     assert same.mean() > 0.99, f"{(~same).sum()} pixels differ between bvh and bvh-packet shadows"
 
 
-def test_packet_layout_matches_the_mesh():
-    """Nodes: each child box holds the triangles below it; leaves: rows (v0, v1 - v0, v2 - v0, id)
-    of the mesh's own triangles, every usable triangle once (checked from the mesh, not the builder)."""
+@pytest.mark.parametrize("width", [2, 4, 8])
+def test_packet_layout_matches_the_mesh(width):
+    """Nodes of up to `width` children, used slots first; each child box holds the triangles below
+    it; leaves: rows (v0, v1 - v0, v2 - v0, id) of the mesh's own triangles, every usable triangle
+    once; the stack holds what a walk down the deepest path pushes (checked from the mesh and the
+    rows, not from the builder)."""
     scene = rtlab.load_scene("default", size=16)
     v, f = scene.vertices, scene.faces
     bvh = build_bvh(v, f)
-    rows = packet_node_data(bvh, v, f)
+    rows, stack = packet_node_data(bvh, v, f, width)
     ints = rows.view(np.int32)
-    m = bvh.n_nodes
-    assert rows.shape == (NODE_ROWS * m + TRI_ROWS * len(bvh.objects), 4)
+    per_node = node_rows(width)
+    m, rest = divmod(len(rows) - TRI_ROWS * len(bvh.objects), per_node)
+    assert rest == 0 and m >= 1
     seen = np.zeros(len(f), np.int64)
 
-    def tris_below(ref):
+    def children(node):
+        refs = [int(ints[per_node * node + 2 * c, 3]) for c in range(width)]
+        used = [r != EMPTY for r in refs]
+        assert all(used[:2]) and used == sorted(used, reverse=True), f"node {node}: slots {refs}"
+        return [(c, r) for c, r in enumerate(refs) if r != EMPTY]
+
+    def walk(ref):
+        """(triangles below ref, collapsed nodes on its longest path)"""
         if ref >= 0:
-            base = NODE_ROWS * ref
-            return np.concatenate([tris_below(int(ints[base, 3])), tris_below(int(ints[base + 2, 3]))])
+            parts = [walk(r) for _, r in children(ref)]
+            for (c, r), (tris, _) in zip(children(ref), parts):
+                corners = v[f[tris]].reshape(-1, 3)
+                box = rows[per_node * ref + 2 * c: per_node * ref + 2 * c + 2, :3]
+                assert np.all(box[0] <= corners.min(0)) and np.all(box[1] >= corners.max(0))
+            return np.concatenate([t for t, _ in parts]), 1 + max(d for _, d in parts)
         bits = ~ref
         first, count = bits >> LEAF_BITS, bits & ((1 << LEAF_BITS) - 1)
-        assert 1 <= count and first >= NODE_ROWS * m and (first - NODE_ROWS * m) % TRI_ROWS == 0
+        assert 1 <= count and first >= per_node * m and (first - per_node * m) % TRI_ROWS == 0
         ids = []
         for r in range(first, first + TRI_ROWS * count, TRI_ROWS):
             tri = int(ints[r, 3])
@@ -147,16 +162,14 @@ def test_packet_layout_matches_the_mesh():
             assert np.array_equal(rows[r, :3], v0)
             assert np.array_equal(rows[r + 1, :3], v1 - v0) and np.array_equal(rows[r + 2, :3], v2 - v0)
             ids.append(tri)
-        return np.array(ids, np.int64)
+        return np.array(ids, np.int64), 0
 
-    for node in range(m):
-        base = NODE_ROWS * node
-        for lo_row in (base, base + 2):
-            tris = tris_below(int(ints[lo_row, 3]))
-            corners = v[f[tris]].reshape(-1, 3)
-            assert np.all(rows[lo_row, :3] <= corners.min(0)) and np.all(rows[lo_row + 1, :3] >= corners.max(0))
-    np.add.at(seen, tris_below(0), 1)
+    tris, depth = walk(0)
+    np.add.at(seen, tris, 1)
     assert np.all(seen == 1)
+    assert stack >= (width - 1) * depth + 1
+    if width > 2:
+        assert depth < build_bvh(v, f).depth, "collapsing did not make the tree shallower"
 
 
 def test_loader_shapes_and_refusals():

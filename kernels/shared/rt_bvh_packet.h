@@ -32,8 +32,12 @@
 #include "rt_memory.h"
 
 #define PBVH_LEAF_BITS 4           /* at most 15 triangles a leaf (sync with rtlab/accel/bvh_packet.py) */
-#define PBVH_NODE_ROWS 4
+#ifndef RT_PACKET_WIDTH            /* children a node; the loader sets it (rtlab.kernels.PACKET_WIDTH) */
+#define RT_PACKET_WIDTH 4
+#endif
+#define PBVH_NODE_ROWS (2 * RT_PACKET_WIDTH)
 #define PBVH_TRI_ROWS 3
+#define PBVH_EMPTY (-1)            /* an unused child slot: a leaf of no triangles */
 
 /* The fused slab form b inv - o inv (rt_bvh.h's RT_BVH_BOX_FMA; the loader sets that for scenes
  * near the origin whose coordinates times 2^64 stay finite, so no lane can make inf - inf) */
@@ -252,31 +256,46 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
     int ref = 0;
     /* Box tests cull beyond t_cut: the closest hit so far, or -inf for a lane that is done */
     lanef t_cut = h->t;
+    lanef inf = lf_splat(RT_INF);
     for (;;) {
-        /* Inner nodes: enter the children some lane hits, the one nearest to a lane first */
+        /* Inner nodes: enter the children some lane hits, the one a lane enters first first; the
+         * others go on the stack, nearer ones on top */
         while (ref >= 0) {
             int base = PBVH_NODE_ROWS * ref;
-            float4 lo0 = load_node_data(base);
-            float4 hi0 = load_node_data(base + 1);
-            float4 lo1 = load_node_data(base + 2);
-            float4 hi1 = load_node_data(base + 3);
-            lanef n0, n1;
-            lanei m0 = packet_hits_box(p, t_cut, lo0, hi0, &n0);
-            lanei m1 = packet_hits_box(p, t_cut, lo1, hi1, &n1);
-            int a0 = lane_any(m0), a1 = lane_any(m1);
-            int c0 = rt_as_int(lo0.w), c1 = rt_as_int(lo1.w);
-            if (a0 && a1) {
-                lanef inf = lf_splat(RT_INF);
-                int near0 = lf_hmin(lf_select(inf, n0, m0)) <= lf_hmin(lf_select(inf, n1, m1));
-                stack[sp++] = near0 ? c1 : c0;
-                ref = near0 ? c0 : c1;
-            } else if (a0 || a1) {
-                ref = a0 ? c0 : c1;
-            } else {
+            int hit_ref[RT_PACKET_WIDTH];
+            float hit_t[RT_PACKET_WIDTH];
+            int n = 0;
+#pragma unroll
+            for (int c = 0; c < RT_PACKET_WIDTH; ++c) {
+                float4 lo = load_node_data(base + 2 * c);
+                float4 hi = load_node_data(base + 2 * c + 1);
+                int child = rt_as_int(lo.w);
+                if (c >= 2 && child == PBVH_EMPTY)
+                    break;
+                lanef t_near;
+                lanei m = packet_hits_box(p, t_cut, lo, hi, &t_near);
+                if (!lane_any(m))
+                    continue;
+                /* insertion by entry distance, farthest first */
+                float e = lf_hmin(lf_select(inf, t_near, m));
+                int j = n++;
+                while (j > 0 && hit_t[j - 1] < e) {
+                    hit_t[j] = hit_t[j - 1];
+                    hit_ref[j] = hit_ref[j - 1];
+                    --j;
+                }
+                hit_t[j] = e;
+                hit_ref[j] = child;
+            }
+            if (n == 0) {
                 if (sp == 0)
                     return;
                 ref = stack[--sp];
+                continue;
             }
+            for (int j = 0; j < n - 1; ++j)
+                stack[sp++] = hit_ref[j];
+            ref = hit_ref[n - 1];
         }
         lanei found = packet_leaf(RT_SCENE_ARGS, ref, p, h, live);
         if (any_hit) {
