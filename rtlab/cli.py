@@ -256,7 +256,7 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
 def bench_cpu_cmd(views: str = typer.Option("bunny/fill,sponza/inside,default",
                                             help="benchmark views (scene/view) or presets with their own camera"),
                   size: int = typer.Option(1024, help="image side: size² primary rays"),
-                  traversal: str = typer.Option("bvh-packet", help="rtlab's traversal"),
+                  traversal: str = typer.Option("bvh-packet", help="rtlab's traversals, comma-separated"),
                   isect: str = typer.Option("moller"),
                   device: Optional[str] = typer.Option(None, help="OpenCL device name substring (default: the CPU)"),
                   threads: Optional[int] = typer.Option(None, help="PoCL worker threads (POCL_MAX_PTHREAD_COUNT; "
@@ -274,7 +274,7 @@ def bench_cpu_cmd(views: str = typer.Option("bunny/fill,sponza/inside,default",
     from .benches.cpu import COLUMNS, EmbreeTracer, bench_cpu, cpu_markdown, table_rows
     from .benches.rays import make_rays
     from .kernels import Variant
-    variant = Variant(traversal=traversal, intersection=isect)
+    variants = [Variant(traversal=t, intersection=isect) for t in traversal.split(",") if t]
     backend = get_backend("opencl", device if device is not None else os.environ.get("RTLAB_DEVICE", "cpu"))
     rows = []
     for view in (v for v in views.split(",") if v):
@@ -282,10 +282,12 @@ def bench_cpu_cmd(views: str = typer.Option("bunny/fill,sponza/inside,default",
             batch = make_rays(view, "primary", size)
         with console.status(f"{view}: Embree's BVH..."):
             embree = EmbreeTracer(batch.scene.vertices, batch.scene.faces)
-        with console.status(f"{view}: rtlab and Embree, {rounds} rounds...") as status:
-            rows.append(bench_cpu(batch, backend, variant, rounds, embree,
-                                  progress=lambda i: status.update(f"{view}: round {i + 1} of {rounds}")))
-        console.print("  ".join(table_rows(rows[-1:])[0]))
+        for variant in variants:
+            with console.status(f"{view}: rtlab {variant.traversal} and Embree, {rounds} rounds...") as status:
+                rows.append(bench_cpu(batch, backend, variant, rounds, embree,
+                                      progress=lambda i: status.update(f"{view} {variant.traversal}: round {i + 1} "
+                                                                       f"of {rounds}")))
+            console.print("  ".join(table_rows(rows[-1:])[0]))
     table = Table(title=f"rtlab on {backend.device_name} against Embree (one thread), same rays")
     for col in COLUMNS:
         table.add_column(col, justify="right")
