@@ -1,6 +1,7 @@
 """The BVH in the layout of the packet traversal (kernels/shared/rt_bvh_packet.h): the CPU's traversal.
 
-The tree is rtlab.accel.bvh's binned-SAH BVH (same build, same disk cache), collapsed to ``width``
+The tree is rtlab.accel.bvh's binned-SAH BVH (same builder and disk cache; PACKET_BUILD's costs: a
+node's boxes are tested on a whole packet, so larger leaves pay), collapsed to ``width``
 children a node (Wald, Benthin & Boulos 2008, "Getting rid of packets": a wider node halves the
 depth; each collapse step opens the inner child with the largest surface area). A packet tests
 each child box and each triangle on all its rays at once, so a node keeps each child's box in two
@@ -20,9 +21,13 @@ import numpy as np
 from numba import njit
 
 from ..errors import SceneError
-from .bvh import LEAF_BITS, Bvh, load_or_build_bvh
+from .bvh import LEAF_BITS, Bvh, BvhBuildParams, load_or_build_bvh
 
 TRI_ROWS = 3
+# SAH costs for packets: a binary node (two box tests on every lane) costs two triangle tests, and
+# leaves may hold up to 15 triangles (2-8 % more Mrays per CPU-second than the GPU BVH's 1.0 and 8
+# on the issue 15 views, most at 256²)
+PACKET_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0)
 EMPTY = -1                                  # ~0: a leaf of no triangles
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1      # largest row a leaf ref addresses
 
@@ -124,7 +129,7 @@ def bvh_packet_accel(scene, tree=None):
     """ACCEL_BUILDERS["bvh-packet"]: the scene's BVH in the packet layout (the kd-tree is not used)."""
     from ..device_scene import AccelArrays
     from ..kernels import PACKET_WIDTH
-    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces)
+    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
     rows, stack = packet_node_data(bvh, scene.vertices, scene.faces, PACKET_WIDTH)
     nodes = np.zeros((1, 2), np.int32)                     # unused by the BVH traversals
     return AccelArrays(nodes, rows, bvh.objects, bvh.bounds, stack)
