@@ -12,16 +12,24 @@
  * RT_TRAVERSAL_BVH_PACKET (rtlab's "bvh-packet"); on a GPU one thread a ray (rt_bvh.h) is the
  * better choice, but the code compiles and runs there too.
  *
+ * The BVH is rt_bvh.h's, collapsed to RT_PACKET_WIDTH (W) children a node on the host: a node's
+ * children are box-tested one after another on the whole packet, the ones some lane hits entered
+ * nearest first (by the smallest entry distance of a lane), the others pushed.
+ *
  * Layout in node_data, float4 rows (sync with rtlab/accel/bvh_packet.py), nodes first:
- *   node i, rows 4 i .. 4 i + 3: (c0.lo.xyz, ref c0), (c0.hi.xyz, 0), (c1.lo.xyz, ref c1), (c1.hi.xyz, 0)
+ *   node i, child c < W: rows 2 W i + 2 c, 2 W i + 2 c + 1 = (lo.xyz, ref), (hi.xyz, 0)
  *   then each leaf's triangles, 3 rows each: (v0.xyz, triangle id), (v1 - v0, 0), (v2 - v0, 0)
  * A child ref >= 0 is an inner node; a leaf is ~((row << 4) | count): count triangles from node_data
- * row `row`, so a leaf reads its triangles without the object list's indirection. The root is
- * node 0 and inner. RT_STACK_SIZE is the BVH's depth + 1.
+ * row `row`, so a leaf reads its triangles without the object list's indirection. Used slots come
+ * first; an unused one has ref PBVH_EMPTY. The root is node 0 and inner. RT_STACK_SIZE is what a
+ * walk down the deepest path can push, (W - 1) x depth + 1 (AccelArrays.stack_size).
  *
- * Boxes are clipped in the exact form (b - o) * inv with inv finite (bvh_inverse), so no lane can
- * produce a NaN and min/max need no NaN rule; with RT_CONSERVATIVE the far distance is widened by
- * its rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Moller-Trumbore runs on the
+ * Boxes are clipped with min/max, which have no NaN rule, so no lane may make a NaN: the inverse
+ * direction is bvh_inverse's (finite), and the slabs are (b - o) inv, or b inv - o inv where the
+ * loader allows the fused form (RT_BVH_BOX_FMA); lanes without a ray are parked (RayPacket). With
+ * RT_CONSERVATIVE the inverse is the exact 1/d, a 0 * inf of a ray in a box's plane is taken as the
+ * slab's unbounded side (clip_slab's fmin/fmax rule), and the far distance is widened by its
+ * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Moller-Trumbore runs on the
  * lanes; the other triangle tests run lane by lane through the shared intersect_tri.
  */
 #ifndef RT_BVH_PACKET_H

@@ -12,7 +12,10 @@
  *   lanef / lanei   RT_LANES floats / ints; masks are lanei with every bit set where true
  *   lf_* li_*       element-wise helpers (names say what they do; no operator syntax in CUDA)
  *   lane_any        whether any lane of a mask is set
- *   lf_get / lf_set one lane by run-time index (the gather/scatter at a packet's ends)
+ *   lf_get / lf_set one lane (the gather/scatter at a packet's ends); in OpenCL through the vector's
+ *                   memory, so read lanes in unrolled loops, where the index is a constant and the
+ *                   read an extract: in a rolled loop LLVM stores every live vector each iteration
+ *   lanes_load_rows the lanes of float4 rows (rays), whole packets by vector loads and shuffles
  */
 #ifndef RT_LANES_H
 #define RT_LANES_H
@@ -67,16 +70,10 @@ RT_FN lanef lf_dot3s(lanef ax, lanef ay, lanef az, float bx, float by, float bz)
     RT_LANE_LOOP r.v[k_] = ax.v[k_] * bx + ay.v[k_] * by + az.v[k_] * bz;
     return r;
 }
-RT_FN lanef lf_cross1(lanef a, float b, lanef c, float d)    /* a b - c d */
+RT_FN lanef lf_cross1(lanef a, float b, lanef c, float d)    /* a b - c d: a cross product's component */
 {
     lanef r;
     RT_LANE_LOOP r.v[k_] = a.v[k_] * b - c.v[k_] * d;
-    return r;
-}
-RT_FN lanef lf_cross2(lanef a, lanef b, lanef c, lanef d)    /* a b - c d */
-{
-    lanef r;
-    RT_LANE_LOOP r.v[k_] = a.v[k_] * b.v[k_] - c.v[k_] * d.v[k_];
     return r;
 }
 RT_FN lanef lf_nan_to(lanef a, float s) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_] != a.v[k_] ? s : a.v[k_]; return r; }
@@ -160,7 +157,6 @@ RT_FN float lf_hmin(lanef a)
 RT_FN lanef lf_dot3(lanef ax, lanef ay, lanef az, lanef bx, lanef by, lanef bz) { return ax * bx + ay * by + az * bz; }
 RT_FN lanef lf_dot3s(lanef ax, lanef ay, lanef az, float bx, float by, float bz) { return ax * bx + ay * by + az * bz; }
 RT_FN lanef lf_cross1(lanef a, float b, lanef c, float d) { return a * b - c * d; }
-RT_FN lanef lf_cross2(lanef a, lanef b, lanef c, lanef d) { return a * b - c * d; }
 RT_FN float lf_get(lanef a, int k) { return ((float *)&a)[k]; }
 RT_FN int li_get(lanei a, int k) { return ((int *)&a)[k]; }
 RT_FN void lf_set(lanef *a, int k, float s) { ((float *)a)[k] = s; }
