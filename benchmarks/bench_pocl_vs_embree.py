@@ -1,57 +1,84 @@
-"""PoCL on this machine's CPU cores against Embree's single-thread figure (issue 7).
+"""rtlab on PoCL against Embree on one thread, measured live on the same rays (issue 15).
 
-Embree (embreex 4.4, one thread) measured 16.4 Mrays/s on BUNNY at 1024² with the camera at 2.5× the
-bounding-box diagonal on the 2-core development machine (../shared/bench/README.md). This prints
-rtlab's PoCL throughput for the same view: the render kernel (camera rays in the kernel, shading) and
-the trace API's kernel (rays from the host), device-event time, median of several launches, with the
-error against the float64 reference beside it.
+For each PoCL thread count asked for (default: one, then one a core) a fresh process (PoCL reads
+its thread count when it starts) traces the views' primary rays with rtlab (the bvh-packet
+traversal unless told otherwise) and with Embree through embreex (one thread), in alternating
+rounds, with each one's error against the float64 reference (rtlab.benches.cpu). Printed: Mrays/s
+of each, the ratio, and Mrays per CPU-second (per core, whatever else runs on the machine).
 
-    python benchmarks/bench_pocl_vs_embree.py [--size 1024] [--repeats 5]
+    python benchmarks/bench_pocl_vs_embree.py [--size 1024] [--rounds 7] [--threads 1,2]
+    rtlab bench cpu --threads 2          # the same measurement for one thread count, as a table
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
+from dataclasses import asdict
 
-import numpy as np
-
-import rtlab
-from rtlab.backends import get_backend
-from rtlab.check import check_render
-from rtlab.rendering import render
-from rtlab.scene.model import Camera
-from rtlab.tracing import camera_rays, trace
-
-EMBREE_MRAYS = 16.4
+VIEWS = "bunny/fill,sponza/inside,default"
 
 
-def embree_view(scene, size: int) -> Camera:
-    lo, hi = scene.bounds().astype(np.float64)
-    centre, diag = (lo + hi) / 2, np.linalg.norm(hi - lo)
-    eye = centre + np.array([0.0, 0.0, 2.5 * diag])
-    return Camera(tuple(eye), tuple(centre), fov_deg=40.0, width=size, height=size)
+def child(args) -> int:
+    """Measure in this process (POCL_MAX_PTHREAD_COUNT already set by the parent) and print JSON rows."""
+    from rtlab.backends import get_backend
+    from rtlab.benches.cpu import EmbreeTracer, bench_cpu
+    from rtlab.benches.rays import make_rays
+    from rtlab.kernels import Variant
+    backend = get_backend("opencl", os.environ.get("RTLAB_DEVICE", "cpu"))
+    rows = []
+    for view in args.views.split(","):
+        batch = make_rays(view, "primary", args.size)
+        row = bench_cpu(batch, backend, Variant(traversal=args.traversal), args.rounds,
+                        EmbreeTracer(batch.scene.vertices, batch.scene.faces))
+        d = asdict(row)
+        d.update(rtlab_mrays=row.rtlab_mrays, embree_mrays=row.embree_mrays, ratio=row.ratio,
+                 rtlab_mrays_cpu=row.rtlab_mrays_cpu, embree_mrays_cpu=row.embree_mrays_cpu,
+                 ratio_per_core=row.ratio_per_core)
+        rows.append(d)
+    print(json.dumps(rows))
+    return 0
 
 
-def main():
-    ap = argparse.ArgumentParser()
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--views", default=VIEWS)
+    ap.add_argument("--traversal", default="bvh-packet")
+    ap.add_argument("--threads", default=f"1,{os.cpu_count()}", help="PoCL thread counts, comma-separated")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    backend = get_backend("opencl", os.environ.get("RTLAB_DEVICE"))
-    scene = rtlab.load_scene("bunny")
-    scene.camera = embree_view(scene, args.size)
-    r = render(scene, backend, repeats=args.repeats, warmup=1, write_hits=False)
-    checked = render(scene, backend, repeats=1, write_hits=True)
-    err = check_render(scene, checked, scene.camera).summary()
-    o, d = camera_rays(scene.camera)
-    times = [trace(scene, o, d, backend=backend).kernel_ms for _ in range(args.repeats + 1)][1:]
-    trace_mrays = o.shape[0] / (np.median(times) * 1e-3) / 1e6
-    print(f"device: {backend.describe()}; cores: {os.cpu_count()}; load: {os.getloadavg()[0]:.2f}")
-    print(f"BUNNY {args.size}² at 2.5x the diagonal: render {r.mrays_per_s:.1f} Mrays/s "
-          f"({r.mrays_per_s / EMBREE_MRAYS:.2f}x Embree 1 thread), trace {trace_mrays:.1f} Mrays/s "
-          f"({trace_mrays / EMBREE_MRAYS:.2f}x); median of {args.repeats}")
-    print(f"error vs float64 reference (render): {err}")
+    if args.child:
+        return child(args)
+    from rtlab.benches.cpu import embree_version, error_text
+    counts = sorted({int(t) for t in args.threads.split(",") if t})
+    results = {}
+    for n in counts:
+        env = dict(os.environ, POCL_MAX_PTHREAD_COUNT=str(n))
+        cmd = [sys.executable, __file__, "--child", "--size", str(args.size), "--rounds", str(args.rounds),
+               "--views", args.views, "--traversal", args.traversal]
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise SystemExit(f"measurement with {n} PoCL threads failed ({r.returncode}):\n{r.stderr[-2000:]}")
+        results[n] = json.loads(r.stdout.strip().splitlines()[-1])
+    first = results[counts[0]]
+    print(f"rtlab {args.traversal} on {first[0]['device']} against {embree_version()} (one thread); "
+          f"{args.size}² primary rays; medians of {args.rounds} alternating rounds; {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.2f}")
+    head = f"{'view':<15} {'PoCL thr.':>9} {'rtlab Mrays/s':>14} {'Embree Mrays/s':>15} {'ratio':>6} " \
+           f"{'rtlab /CPU-s':>13} {'Embree /CPU-s':>14} {'per core':>8}  errors (rtlab | Embree)"
+    print(head)
+    for i, view_row in enumerate(first):
+        for n in counts:
+            r = results[n][i]
+            print(f"{view_row['view']:<15} {r['threads']:>9} {r['rtlab_mrays']:>14.2f} {r['embree_mrays']:>15.2f} "
+                  f"{r['ratio']:>5.2f}x {r['rtlab_mrays_cpu']:>13.2f} {r['embree_mrays_cpu']:>14.2f} "
+                  f"{r['ratio_per_core']:>7.2f}x  {error_text(r['rtlab_error'])} | {error_text(r['embree_error'])}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

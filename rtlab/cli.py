@@ -296,6 +296,53 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
             f.write(rays_markdown(rows, _command("rays")) + "\n")
 
 
+@bench_app.command("cpu")
+def bench_cpu_cmd(views: str = typer.Option("bunny/fill,sponza/inside,default",
+                                            help="benchmark views (scene/view) or presets with their own camera"),
+                  size: int = typer.Option(1024, help="image side: size² primary rays"),
+                  traversal: str = typer.Option("bvh-packet", help="rtlab's traversals, comma-separated"),
+                  isect: str = typer.Option("moller"),
+                  device: Optional[str] = typer.Option(None, help="OpenCL device name substring (default: the CPU)"),
+                  threads: Optional[int] = typer.Option(None, help="PoCL worker threads (POCL_MAX_PTHREAD_COUNT; "
+                                                                   "default: one a core)"),
+                  rounds: int = typer.Option(7, help="alternating timed rounds; medians are reported"),
+                  md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
+    """rtlab on PoCL against Embree (embreex, one thread), the same rays in the same run: Mrays/s of
+    each, the ratio, and each one's error against the float64 reference."""
+    import os
+    if threads is not None:
+        if threads < 1:
+            raise RtlabError(f"--threads must be at least 1, got {threads}")
+        os.environ["POCL_MAX_PTHREAD_COUNT"] = str(threads)    # read when PoCL starts, below
+    from .backends import get_backend
+    from .benches.cpu import COLUMNS, EmbreeTracer, bench_cpu, cpu_markdown, table_rows
+    from .benches.rays import make_rays
+    from .kernels import Variant
+    variants = [Variant(traversal=t, intersection=isect) for t in traversal.split(",") if t]
+    backend = get_backend("opencl", device if device is not None else os.environ.get("RTLAB_DEVICE", "cpu"))
+    rows = []
+    for view in (v for v in views.split(",") if v):
+        with console.status(f"{view}: {size}² rays and their float64 reference..."):
+            batch = make_rays(view, "primary", size)
+        with console.status(f"{view}: Embree's BVH..."):
+            embree = EmbreeTracer(batch.scene.vertices, batch.scene.faces)
+        for variant in variants:
+            with console.status(f"{view}: rtlab {variant.traversal} and Embree, {rounds} rounds...") as status:
+                rows.append(bench_cpu(batch, backend, variant, rounds, embree,
+                                      progress=lambda i: status.update(f"{view} {variant.traversal}: round {i + 1} "
+                                                                       f"of {rounds}")))
+            console.print("  ".join(table_rows(rows[-1:])[0]))
+    table = Table(title=f"rtlab on {backend.device_name} against Embree (one thread), same rays")
+    for col in COLUMNS:
+        table.add_column(col, justify="right")
+    for cells in table_rows(rows):
+        table.add_row(*cells)
+    console.print(table)
+    if md:
+        with open(md, "a") as f:
+            f.write(cpu_markdown(rows, _command("cpu"), rounds) + "\n")
+
+
 @bench_app.command("intersect")
 def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separated presets"),
                     backends: str = typer.Option("auto", help="comma-separated: opencl, cuda, auto"),

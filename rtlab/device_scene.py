@@ -78,15 +78,20 @@ def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=Non
 # 1.5e5 leaks less with it than with the exact test); far from the origin the pad, 2^-22 |o| / |d|,
 # only loosens its culling. The gate stays until that is measured on the GPU.
 NEAR_ORIGIN_EXTENTS = 4.0
+# ... and whose coordinates times the largest inverse direction (2^64, rt_bvh.h) stay finite in
+# float32, so that b inv cannot overflow and b inv - o inv cannot be inf - inf
+FUSED_BOX_MAX_COORD = 1e18
 
 
 def near_origin(scene: Scene) -> bool:
-    """Whether the scene lies near the origin compared with its size (NEAR_ORIGIN_EXTENTS)."""
+    """Whether the scene lies near the origin compared with its size (NEAR_ORIGIN_EXTENTS) and its
+    coordinates are below FUSED_BOX_MAX_COORD."""
     if scene.vertices.size == 0:
         return False
     b = scene.bounds().astype(np.float64)
     extent = float((b[1] - b[0]).max())
-    return bool(np.all(np.isfinite(b)) and extent > 0 and np.abs(b).max() <= NEAR_ORIGIN_EXTENTS * extent)
+    return bool(np.all(np.isfinite(b)) and extent > 0
+                and np.abs(b).max() <= min(NEAR_ORIGIN_EXTENTS * extent, FUSED_BOX_MAX_COORD))
 
 
 def scene_features(scene: Scene, stack_size: int) -> SceneFeatures:
@@ -228,4 +233,4 @@ class DeviceScene:
 
 
 from .accel import tri_data as _tri_data  # noqa: E402,F401  registers TRI_DATA_BUILDERS["wald"], ["plucker"]
-from .accel import bvh as _bvh, ropes as _ropes  # noqa: E402,F401  registers ACCEL_BUILDERS["bvh"], ["ropes"]
+from .accel import bvh as _bvh, bvh_packet as _bvh_packet, ropes as _ropes  # noqa: E402,F401  ACCEL_BUILDERS

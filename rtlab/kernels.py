@@ -13,8 +13,9 @@ from .errors import VariantError
 from .paths import KERNEL_DIR
 
 # name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
-# here once its kernels exist in both languages.
-TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5}
+# here once its kernels exist in both languages. "bvh-packet" is the BVH walked by packets of
+# PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
+TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5, "bvh-packet": 6}
 INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
 NODE_MEMORY = {"global": 0, "texture": 1}
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
@@ -23,6 +24,8 @@ RAY_MEMORY = {"registers": 3, "shared": 4, "indexed": 5}
 RAY_ORDERS = {"rows": 0, "morton": 1}
 MEMORY_STEP = "01_memory"
 TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.tracing.TRACE_BLOCK)
+PACKET_LANES = 8          # rays a work-item of the bvh-packet traversal (RT_LANES): one AVX register
+PACKET_WIDTH = 4          # children a node of its BVH (RT_PACKET_WIDTH, rtlab/accel/bvh_packet.py)
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -35,6 +38,9 @@ DEFAULT_PRIMARY_STEP = "00_primary"
 def primary_step(variant: "Variant") -> str:
     """The lab step (kernel pair) with ``trace_rays`` / ``render_primary`` for this variant: lab step
     01's kernels when the variant moves constants or the ray (only they declare those placements)."""
+    if variant.traversal == "bvh-packet" and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
+        raise VariantError("the bvh-packet traversal takes rays (pixels of a row) in packets through lab step 00's "
+                           "kernels, which keep constants in constant memory and the ray in registers")
     step = PRIMARY_STEPS.get(variant.traversal)
     if step is not None and (variant.needs_memory_kernels() or variant.ray_order != "rows"):
         raise VariantError(f"{variant.traversal} traversal has its own kernels ({step}), which keep constants "
@@ -183,8 +189,11 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
-    if variant.traversal == "bvh":
+    if variant.traversal in ("bvh", "bvh-packet"):
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
+    if variant.traversal == "bvh-packet":
+        defines["RT_LANES"] = PACKET_LANES
+        defines["RT_PACKET_WIDTH"] = PACKET_WIDTH
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block
         defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]
@@ -200,6 +209,12 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
 # rt_intersect.h) already allow a reciprocal that is not correctly rounded. Every CUDA compile uses
 # them: the backend's and the offline nvcc report's (rtlab.nvcc).
 CUDA_PRECISION_OPTIONS = ("--prec-div=false", "--prec-sqrt=false")
+
+
+def rays_per_work_item(variant: Variant) -> int:
+    """Rays one work-item of lab step 00's trace_rays takes, and pixels of a row one work-item of its
+    render_primary takes (the launches cover n / this work-items)."""
+    return PACKET_LANES if variant.traversal == "bvh-packet" else 1
 
 
 def build_options(variant: Variant, backend) -> tuple[str, ...]:

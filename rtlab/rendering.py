@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .backends import get_backend
-from .kernels import Variant, load_program, primary_step
+from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE
 from .scene.model import Scene
 from .tracing import TraceResult, default_variant, device_scene, unpack_hits
@@ -49,7 +49,9 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     pixels = backend.empty(n * 4)
     hits = backend.empty(n * HIT_DTYPE.itemsize if write_hits else 4)
     args = ds.scene_args(variant) + [pixels, hits]
-    launch = lambda: program.launch("render_primary", (camera.width, camera.height), variant.block, args,
+    lanes = rays_per_work_item(variant)           # a work-item takes `lanes` pixels of a row
+    block = (max(1, variant.block[0] // lanes), variant.block[1])
+    launch = lambda: program.launch("render_primary", (-(-camera.width // lanes), camera.height), block, args,
                                     constants=("frame", "lights", "materials"))
     for _ in range(warmup):
         launch()
@@ -62,7 +64,7 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     image = rgba.view(np.uint8).reshape(camera.height, camera.width, 4)[:, :, :3].copy()
     result = RenderResult(image, times, float(np.median(walls)), backend=backend.name,
                           device=backend.device_name, variant=variant,
-                          resources=program.resources("render_primary", variant.block).as_dict())
+                          resources=program.resources("render_primary", block).as_dict())
     if write_hits:
         t, tri, u, v = unpack_hits(backend.to_host(hits, np.float32, 4 * n))
         result.hits = TraceResult(t, tri, u, v, result.median_ms, backend.name, backend.device_name)

@@ -12,7 +12,7 @@ import numpy as np
 from .backends import get_backend
 from .device_scene import DeviceScene, scene_fingerprint
 from .errors import RtlabError
-from .kernels import Variant, load_program, primary_step
+from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .scene.model import Camera, Scene
 
@@ -185,8 +185,9 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     o_buf, d_buf, h_buf = ray_buffers(backend, n)
     backend.fill(o_buf, float4_rows(origins, lo * scale))
     backend.fill(d_buf, float4_rows(directions, hi * scale))
+    items = -(-n // rays_per_work_item(variant))        # a packet traversal takes several rays an item
     launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width else \
-        (lambda: program.launch("trace_rays", (n,), (TRACE_BLOCK,),
+        (lambda: program.launch("trace_rays", (items,), (TRACE_BLOCK,),
                                 ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))

@@ -12,9 +12,14 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
                           const float4 *__restrict__ directions, float4 *__restrict__ hits, int n_rays)
 {
     int i = blockIdx.x * blockDim.x + threadIdx.x;
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES rays a thread, traced together (the CPU's traversal; it compiles and runs here too)
+    trace_packet(RT_SCENE_ARGS, &c_frame, origins, directions, hits, i * RT_LANES, n_rays);
+#else
     if (i >= n_rays)
         return;
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+#endif
 }
 
 // Closest hit of rays laid out as an image, width x height row-major (rtlab.trace(..., width=)):
@@ -34,6 +39,12 @@ RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, const float4 *__restrict__ origin
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).
 RT_KERNEL void render_primary(RT_SCENE_PARAMS, unsigned int *__restrict__ pixels, float4 *__restrict__ hits)
 {
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES pixels of a row a thread, traced together
+    render_packet(RT_SCENE_ARGS, &c_frame, c_lights, c_materials, (blockIdx.x * blockDim.x + threadIdx.x) * RT_LANES,
+                  blockIdx.y * blockDim.y + threadIdx.y, pixels, hits);
+    return;
+#endif
     int x, y;
     block_pixel(blockIdx.x, blockIdx.y, blockDim.x, blockDim.y, threadIdx.x, threadIdx.y, &x, &y);
     if (x >= c_frame.width || y >= c_frame.height)

@@ -8,10 +8,15 @@ __kernel void trace_rays(RT_SCENE_PARAMS, __global const float4 *restrict origin
                          __global const float4 *restrict directions, __global float4 *restrict hits,
                          int n_rays, __constant RtFrame *frame)
 {
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES rays a work-item, traced together in SIMD lanes
+    trace_packet(RT_SCENE_ARGS, frame, origins, directions, hits, (int)get_global_id(0) * RT_LANES, n_rays);
+#else
     int i = get_global_id(0);
     if (i >= n_rays)
         return;
     hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+#endif
 }
 
 // Closest hit of rays laid out as an image, width x height row-major (rtlab.trace(..., width=)):
@@ -34,6 +39,12 @@ __kernel void render_primary(RT_SCENE_PARAMS, __global unsigned int *restrict pi
                              __global float4 *restrict hits, __constant RtFrame *frame,
                              __constant RtLight *lights, __constant RtMaterial *materials)
 {
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    // RT_LANES pixels of a row a work-item, traced together in SIMD lanes
+    render_packet(RT_SCENE_ARGS, frame, lights, materials, (int)get_global_id(0) * RT_LANES, (int)get_global_id(1),
+                  pixels, hits);
+    return;
+#endif
     int x, y;
     block_pixel(get_group_id(0), get_group_id(1), get_local_size(0), get_local_size(1), get_local_id(0),
                 get_local_id(1), &x, &y);

@@ -23,6 +23,7 @@
 #define RT_TRAVERSAL_SHORTSTACK 3  /* short stack, Horn et al. 2007 */
 #define RT_TRAVERSAL_ROPES 4       /* ropes, Popov et al. 2007 */
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
+#define RT_TRAVERSAL_BVH_PACKET 6  /* the same BVH, RT_LANES rays a work-item in SIMD lanes: for CPUs */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 #define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */

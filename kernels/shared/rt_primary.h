@@ -6,6 +6,9 @@
 #include "rt_traverse.h"
 #include "rt_shade.h"
 
+/* The host reads a hit as float4 (t, u, v, tri bits); a miss has tri = -1 and t = tmax. */
+RT_FN float4 pack_hit(Hit h) { return f4(h.t, h.u, h.v, rt_as_float(h.tri)); }
+
 /* Closest hit along *ray, its distance refined. The ray may live anywhere the pointer reaches: lab
  * step 01's CUDA kernels keep it in shared memory (§3.1.1). */
 RT_FN Hit closest_hit(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Ray *ray)
@@ -23,6 +26,38 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
     return closest_hit(RT_SCENE_ARGS, frame, &ray);
 }
 
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* The work of trace_rays with the packet traversal: rays first .. first + RT_LANES - 1 (those
+ * below n_rays) traced as one packet, each hit refined and written as trace_one's would be. */
+RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBAL const float4 *origins,
+                        RT_GLOBAL const float4 *directions, RT_GLOBAL float4 *hits, int first, int n_rays)
+{
+    int count = n_rays - first < RT_LANES ? n_rays - first : RT_LANES;
+    lanef ox, oy, oz, tmin, dx, dy, dz, tmax;
+    lanes_load_rows(origins, first, count, &ox, &oy, &oz, &tmin);
+    lanes_load_rows(directions, first, count, &dx, &dy, &dz, &tmax);
+    RayPacket p;
+    HitPacket h;
+    lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);   /* lanes past count: d = 0 */
+    if (lane_any(live))
+        traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
+    /* Unrolled, so that each lane is read by a constant index (an extract), not through memory */
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (k >= count)
+            break;
+        Hit hit = make_miss(lf_get(tmax, k));
+        if (li_get(live, k)) {
+            packet_get_hit(&h, k, &hit);
+            Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
+                               f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
+            refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+        }
+        hits[first + k] = pack_hit(hit);
+    }
+}
+#endif
+
 /* Shaded colour of the closest hit along *ray; its hit record in *hit. */
 RT_FN unsigned int render_ray(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
                               RT_CONST const RtMaterial *materials, const Ray *ray, Hit *hit)
@@ -39,6 +74,44 @@ RT_FN unsigned int render_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
     Ray ray = camera_ray(frame, x, y);
     return render_ray(RT_SCENE_ARGS, frame, lights, materials, &ray, hit);
 }
+
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* The work of render_primary with the packet traversal: pixels x0 .. x0 + RT_LANES - 1 of row y
+ * (those inside the frame), their camera rays traced as one packet, each then shaded and written
+ * as render_pixel's would be. */
+RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
+                         RT_CONST const RtMaterial *materials, int x0, int y, RT_GLOBAL unsigned int *pixels,
+                         RT_GLOBAL float4 *hits)
+{
+    if (x0 >= frame->width || y >= frame->height)
+        return;
+    int count = frame->width - x0 < RT_LANES ? frame->width - x0 : RT_LANES;
+    Ray rays[RT_LANES];
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k)
+        rays[k] = camera_ray(frame, k < count ? x0 + k : x0, y);
+    RayPacket p;
+    HitPacket h;
+    lanei live = packet_of_rays(&p, &h, rays, count);
+    if (lane_any(live))
+        traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (k >= count)
+            break;
+        Hit hit = make_miss(rays[k].tmax);
+        if (li_get(live, k)) {
+            packet_get_hit(&h, k, &hit);
+            refine_hit_t(RT_SCENE_ARGS, &rays[k], &hit);
+        }
+        int i = y * frame->width + x0 + k;
+        pixels[i] = pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &rays[k], &hit));
+#if RT_WRITE_HITS
+        hits[i] = pack_hit(hit);
+#endif
+    }
+}
+#endif
 
 /* Bits 0, 2, 4, ... of v packed together (Morton decode). */
 RT_FN int compact_even_bits(int v)
@@ -82,7 +155,5 @@ RT_FN void block_pixel(int bx, int by, int bw, int bh, int tx, int ty, int *x, i
 #endif
 }
 
-/* The host reads a hit as float4 (t, u, v, tri bits); a miss has tri = -1 and t = tmax. */
-RT_FN float4 pack_hit(Hit h) { return f4(h.t, h.u, h.v, rt_as_float(h.tri)); }
 
 #endif /* RT_PRIMARY_H */

@@ -23,6 +23,10 @@
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH
 #include "rt_bvh.h"
 #define RT_TRAVERSE_RAY traverse_bvh
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* trace_rays takes RT_LANES rays a work-item (rt_primary.h); single rays ride in one lane */
+#include "rt_bvh_packet.h"
+#define RT_TRAVERSE_RAY traverse_bvh_packet_ray
 #elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #ifndef RT_PACKET_KERNELS
 #error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.kernels.primary_step)"

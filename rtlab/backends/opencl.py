@@ -46,13 +46,21 @@ def _version_key(platform) -> tuple:
 
 
 def choose_device(device: str | None = None):
-    """Pick a device: by name substring or 'P:D' indices (``device`` or ``$PYOPENCL_CTX``); else the
-    first GPU; else the CPU device of the newest platform (two PoCL installs can coexist)."""
+    """Pick a device: "cpu" or "gpu" (by type; the newest platform's), a name substring or 'P:D'
+    indices (``device`` or ``$PYOPENCL_CTX``); else the first GPU; else the CPU device of the newest
+    platform (two PoCL installs can coexist)."""
     cl = _cl()
     found = list_devices()
     if not found:
         raise BackendError(POCL_HINT)
     want = device if device is not None else os.environ.get("PYOPENCL_CTX")
+    if want and want.strip().lower() in ("cpu", "gpu"):
+        kind = cl.device_type.CPU if want.strip().lower() == "cpu" else cl.device_type.GPU
+        typed = sorted((f for f in found if f[3].type & kind), key=lambda f: _version_key(f[2]), reverse=True)
+        if not typed:
+            names = ", ".join(f"{pi}:{di} {d.name.strip()} [{p.name}]" for pi, di, p, d in found)
+            raise BackendError(f"no OpenCL {want.strip().lower().upper()} device; available: {names}")
+        return typed[0][2], typed[0][3]
     if want:
         m = re.fullmatch(r"(\d+)(?::(\d+))?", want.strip())
         if m:

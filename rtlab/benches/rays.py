@@ -59,11 +59,13 @@ class RayBatch:
 
 
 def view_scene(view: str, size: int) -> Scene:
-    """The preset of ``scene/view`` with the benchmark camera at size x size."""
+    """The preset of ``scene/view`` with the benchmark camera at size x size; a bare preset name
+    ("default") keeps the preset's own camera."""
     from ..scene import bench_camera, load_scene
     name = view.split("/", 1)[0]
     scene = load_scene(name, size=size)
-    scene.camera = bench_camera(view, size)
+    if "/" in view:
+        scene.camera = bench_camera(view, size)
     return scene
 
 
