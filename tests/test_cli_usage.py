@@ -35,6 +35,7 @@ CHEAP_FORMS = {
     ("bench", "launch"): ("bench launch --scene default --size 32 --repeats 1 --figures 4 --blocks 32x4 "
                           "--orders rows --out {tmp}/launch"),
     ("bench", "paper"): "bench paper --scenes default --sections table2 --size 32 --repeats 1 --out {tmp}/paper",
+    ("bench", "cpu"): "bench cpu --views default --size 32 --rounds 1",
     ("bench", "rays"): "bench rays --views bunny/far --kind primary,diffuse --sizes 32 --repeats 1 --traversals bvh",
     ("inspect",): "inspect --depth 2 --size 32 --pixel 16 16 --screenshot {tmp}/inspect.png",
     ("lab", "list"): "lab list",

@@ -61,8 +61,10 @@ typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;
     lanef ix, iy, iz;              /* bvh_inverse(d), finite; with RT_CONSERVATIVE 1/d */
+    lanei zx, zy, zz;              /* lanes whose direction component is zero (|d| <= RT_BVH_MIN_DIR) */
 #if RT_PACKET_BOX_FMA
-    lanef oix, oiy, oiz;           /* o * inv, for the fused slab form */
+    lanef onx, ony, onz;           /* o * inv plus its rounding bound (the fused form's near planes) */
+    lanef ofx, ofy, ofz;           /* o * inv minus it (far planes): rt_bvh.h's bvh_ray, lane by lane */
 #endif
     lanef tmin;
 } RayPacket;
@@ -72,6 +74,18 @@ typedef struct {
     lanef t, u, v;
     lanei tri;
 } HitPacket;
+
+#if RT_PACKET_BOX_FMA
+/* o inv of one axis moved by its rounding bound (rt_bvh.h, hazard 1 of the fused box test): the
+ * near planes' distances come out no larger, the far planes' no smaller than the exact ones */
+RT_FN void packet_origin_pads(lanef o, lanef inv, lanef *o_near, lanef *o_far)
+{
+    lanef oi = lf_mul(o, inv);
+    lanef pad = lf_mul(lf_abs(oi), lf_splat(RT_BVH_ULP_PAD));
+    *o_near = lf_add(oi, pad);
+    *o_far = lf_sub(oi, pad);
+}
+#endif
 
 /* The packet of rays o + t d, t in (tmin, tmax), lane by lane (all lanes vector operations);
  * returns the lanes that hold a ray that can enter a box (ray_can_enter's rule). */
@@ -96,10 +110,13 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     p->iy = lf_select(one, lf_div(1.0f, lf_away_from_zero(dy, RT_BVH_MIN_DIR)), live);
     p->iz = lf_select(one, lf_div(1.0f, lf_away_from_zero(dz, RT_BVH_MIN_DIR)), live);
 #endif
+    p->zx = lf_tiny(p->dx, RT_BVH_MIN_DIR);
+    p->zy = lf_tiny(p->dy, RT_BVH_MIN_DIR);
+    p->zz = lf_tiny(p->dz, RT_BVH_MIN_DIR);
 #if RT_PACKET_BOX_FMA
-    p->oix = lf_mul(p->ox, p->ix);
-    p->oiy = lf_mul(p->oy, p->iy);
-    p->oiz = lf_mul(p->oz, p->iz);
+    packet_origin_pads(p->ox, p->ix, &p->onx, &p->ofx);
+    packet_origin_pads(p->oy, p->iy, &p->ony, &p->ofy);
+    packet_origin_pads(p->oz, p->iz, &p->onz, &p->ofz);
 #endif
     p->tmin = lf_select(lf_splat(RT_INF), tmin, live);
     h->t = lf_select(lf_splat(-RT_INF), tmax, live);
@@ -137,23 +154,24 @@ RT_FN void packet_get_hit(const HitPacket *h, int k, Hit *hit)
 }
 
 /* One slab: distances of the planes lo and hi, near in *t0 and far in *t1 (min/max, so the sign
- * of the direction needs no test). oi = o * inv for the fused form. */
-RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef oi, lanef *t0, lanef *t1)
+ * of the direction needs no test); the fused form takes o inv padded for each (o_near, o_far). A lane whose direction has no
+ * component along the axis (z) is decided exactly: inside [lo, hi] the slab does not bound it, a ray
+ * lying in the plane of lo or hi included (whichever sign its zero has), outside it misses the box. */
+RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef o_near, lanef o_far, lanei z, lanef *t0,
+                       lanef *t1)
 {
 #if RT_PACKET_BOX_FMA
-    lanef ta = lf_fms(lo, inv, oi);
-    lanef tb = lf_fms(hi, inv, oi);
-#elif RT_CONSERVATIVE
-    /* inv = 1/d, infinite for a zero component: a ray in the plane of lo or hi gives 0 * inf, whose
-     * NaN becomes the unbounded side, so the ray stays in the slab (clip_slab's fmin/fmax rule) */
-    lanef ta = lf_nan_to(lf_mul(lf_sub(lf_splat(lo), o), inv), -RT_INF);
-    lanef tb = lf_nan_to(lf_mul(lf_sub(lf_splat(hi), o), inv), RT_INF);
+    lanef near = lf_min(lf_fms(lo, inv, o_near), lf_fms(hi, inv, o_near));
+    lanef far = lf_max(lf_fms(lo, inv, o_far), lf_fms(hi, inv, o_far));
 #else
     lanef ta = lf_mul(lf_sub(lf_splat(lo), o), inv);
     lanef tb = lf_mul(lf_sub(lf_splat(hi), o), inv);
+    lanef near = lf_min(ta, tb), far = lf_max(ta, tb);
 #endif
-    *t0 = lf_min(ta, tb);
-    *t1 = lf_max(ta, tb);
+    lanei inside = li_and(lf_le(lf_splat(lo), o), lf_le(o, lf_splat(hi)));
+    lanef inf = lf_splat(RT_INF), minus_inf = lf_splat(-RT_INF);
+    *t0 = lf_select(near, lf_select(inf, minus_inf, inside), z);
+    *t1 = lf_select(far, lf_select(minus_inf, inf, inside), z);
 }
 
 /* Lanes whose segment [tmin, t_cut] meets the box [lo, hi] (inclusive at t_cut, as rt_bvh.h);
@@ -162,13 +180,13 @@ RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 h
 {
     lanef nx, fx, ny, fy, nz, fz;
 #if RT_PACKET_BOX_FMA
-    packet_slab(lo.x, hi.x, p->ox, p->ix, p->oix, &nx, &fx);
-    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oiy, &ny, &fy);
-    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oiz, &nz, &fz);
+    packet_slab(lo.x, hi.x, p->ox, p->ix, p->onx, p->ofx, p->zx, &nx, &fx);
+    packet_slab(lo.y, hi.y, p->oy, p->iy, p->ony, p->ofy, p->zy, &ny, &fy);
+    packet_slab(lo.z, hi.z, p->oz, p->iz, p->onz, p->ofz, p->zz, &nz, &fz);
 #else
-    packet_slab(lo.x, hi.x, p->ox, p->ix, p->ox, &nx, &fx);
-    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oy, &ny, &fy);
-    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oz, &nz, &fz);
+    packet_slab(lo.x, hi.x, p->ox, p->ix, p->ox, p->ox, p->zx, &nx, &fx);
+    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oy, p->oy, p->zy, &ny, &fy);
+    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oz, p->oz, p->zz, &nz, &fz);
 #endif
     lanef t0 = lf_max(lf_max(nx, ny), lf_max(nz, p->tmin));
     lanef t1 = lf_min(lf_min(fx, fy), fz);

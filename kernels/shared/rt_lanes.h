@@ -81,6 +81,9 @@ RT_FN lanef lf_nan_to(lanef a, float s) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_
 RT_FN lanef lf_fms(float a, lanef b, lanef c) { lanef r; RT_LANE_LOOP r.v[k_] = rt_fma(a, b.v[k_], -c.v[k_]); return r; }
 RT_FN lanei lf_finite(lanef a) { lanei r; RT_LANE_LOOP r.v[k_] = isfinite(a.v[k_]) ? -1 : 0; return r; }
 /* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
+/* Lanes whose |a| <= tiny */
+RT_FN lanei lf_tiny(lanef a, float tiny) { lanei r; RT_LANE_LOOP r.v[k_] = fabsf(a.v[k_]) <= tiny ? -1 : 0; return r; }
+RT_FN lanef lf_abs(lanef a) { lanef r; RT_LANE_LOOP r.v[k_] = fabsf(a.v[k_]); return r; }
 RT_FN lanef lf_away_from_zero(lanef d, float tiny)
 {
     lanef r;
@@ -168,6 +171,8 @@ RT_FN lanef lf_fms(float a, lanef b, lanef c) { return fma((lanef)(a), b, -c); }
 RT_FN lanei lf_finite(lanef a) { return isfinite(a); }
 /* d with components of magnitude <= tiny replaced by tiny of their sign (-0 counts as negative) */
 RT_FN lanef lf_away_from_zero(lanef d, float tiny) { return select(copysign((lanef)(tiny), d), d, fabs(d) > tiny); }
+RT_FN lanei lf_tiny(lanef a, float tiny) { return fabs(a) <= (lanef)(tiny); }
+RT_FN lanef lf_abs(lanef a) { return fabs(a); }
 /* Lanes 0 .. count - 1 of x, y, z, w from p[first ..] (float4 rows); the others 0. A whole packet
  * (8 lanes) is four 8-float loads and shuffles, not a store per lane followed by a vector load. */
 RT_FN void lanes_load_rows(__global const float4 *p, int first, int count, lanef *x, lanef *y, lanef *z, lanef *w)
