@@ -90,13 +90,13 @@ RT_KERNEL void fetch_scene(RT_SCENE_PARAMS, int which, int n, int4 *__restrict__
     int2 node;
     int4 v = make_int4(0, 0, 0, 0);
     switch (which) {
-    case 0: node = load_node(i); v = make_int4(node.x, node.y, 0, 0); break;
-    case 1: v = float4_bits(load_node_data(i)); break;
-    case 2: v.x = load_object(i); break;
-    case 3: v = float4_bits(load_tri_vertex(i / 3, i % 3)); break;
-    case 4: v = float4_bits(load_tri_data(i)); break;
-    case 5: v = float4_bits(load_tri_normal(i / 3, i % 3)); break;
-    default: v.x = load_tri_material(i); break;
+    case 0: node = load_node(nodes, i); v = make_int4(node.x, node.y, 0, 0); break;
+    case 1: v = float4_bits(load_node_data(node_data, i)); break;
+    case 2: v.x = load_object(objects, i); break;
+    case 3: v = float4_bits(load_tri_vertex(tris, i / 3, i % 3)); break;
+    case 4: v = float4_bits(load_tri_data(tri_data, i)); break;
+    case 5: v = float4_bits(load_tri_normal(normals, i / 3, i % 3)); break;
+    default: v.x = load_tri_material(tri_materials, i); break;
     }
     out[i] = v;
 }

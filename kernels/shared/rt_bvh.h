@@ -113,7 +113,7 @@ RT_FN int intersect_bvh_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit
     int first = bits >> BVH_LEAF_BITS;
     int count = bits & ((1 << BVH_LEAF_BITS) - 1);
     for (int i = 0; i < count; ++i) {
-        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(first + i), hit) && any_hit)
+        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(objects, first + i), hit) && any_hit)
             return 1;
     }
     return 0;
@@ -135,10 +135,10 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
         /* Inner nodes: take the nearer child hit, push the farther; pop when neither is hit */
         while (ref >= 0) {
             int base = BVH_NODE_STRIDE * ref;
-            float4 a = load_node_data(base);
-            float4 b = load_node_data(base + 1);
-            float4 z = load_node_data(base + 2);
-            float4 c = load_node_data(base + 3);
+            float4 a = load_node_data(node_data, base);
+            float4 b = load_node_data(node_data, base + 1);
+            float4 z = load_node_data(node_data, base + 2);
+            float4 c = load_node_data(node_data, base + 3);
             float e0, e1;
             int hit0 = hit_bvh_child(ray, &fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), hit->t, &e0);
             int hit1 = hit_bvh_child(ray, &fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), hit->t, &e1);

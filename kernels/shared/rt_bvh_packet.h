@@ -263,10 +263,10 @@ RT_FN lanei packet_leaf(RT_SCENE_PARAMS, int leaf, const RayPacket *p, HitPacket
     int count = bits & ((1 << PBVH_LEAF_BITS) - 1);
     lanei found = li_splat(0);
     for (int i = 0; i < count; ++i, row += PBVH_TRI_ROWS) {
-        float4 a = load_node_data(row);
+        float4 a = load_node_data(node_data, row);
 #if RT_ISECT == RT_ISECT_MOLLER
-        float4 e1 = load_node_data(row + 1);
-        float4 e2 = load_node_data(row + 2);
+        float4 e1 = load_node_data(node_data, row + 1);
+        float4 e2 = load_node_data(node_data, row + 2);
         found = li_or(found, packet_tri_moller(p, h, xyz(a), xyz(e1), xyz(e2), rt_as_int(a.w)));
 #else
         found = li_or(found, packet_tri_lanewise(RT_SCENE_ARGS, p, h, live, rt_as_int(a.w)));
@@ -295,8 +295,8 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
             int n = 0;
 #pragma unroll
             for (int c = 0; c < RT_PACKET_WIDTH; ++c) {
-                float4 lo = load_node_data(base + 2 * c);
-                float4 hi = load_node_data(base + 2 * c + 1);
+                float4 lo = load_node_data(node_data, base + 2 * c);
+                float4 hi = load_node_data(node_data, base + 2 * c + 1);
                 int child = rt_as_int(lo.w);
                 if (c >= 2 && child == PBVH_EMPTY)
                     break;

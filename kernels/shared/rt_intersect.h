@@ -17,21 +17,6 @@
 #include "rt_memory.h"
 #include "rt_types.h"
 
-/* Double precision for the watertight test's fallback: always in CUDA, in OpenCL where the device
- * has cl_khr_fp64 (-DRT_HAS_FP64=0 forces the float-only path). */
-#ifndef RT_HAS_FP64
-#if defined(__CUDACC__)
-#define RT_HAS_FP64 1
-#elif defined(cl_khr_fp64)
-#define RT_HAS_FP64 1
-#else
-#define RT_HAS_FP64 0
-#endif
-#endif
-#if RT_HAS_FP64 && !defined(__CUDACC__)
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-#endif
-
 /* Relative rounding bound of a plane distance (p - o) * inv_d: three roundings (subtract, reciprocal,
  * multiply) give gamma(3) = 3u/(1-3u), u = 2^-24; comparing two such distances needs twice that
  * (Ize 2013, "Robust BVH Ray Traversal", JCGT 2(2): pad the far distance; pbrt-v3 multiplies it by
@@ -154,19 +139,6 @@ RT_FN int intersect_ray_tri_plucker(const Ray *ray, const TriPlucker *acc, int t
     /* END SOLUTION */
 }
 
-/* a*b - c*d with each product rounded on its own. A fused multiply-add would round the two
- * products differently, and the edge function of a shared edge would no longer be exactly the
- * negation of its neighbour's (Woop et al. 2013 assume no contraction). */
-RT_FN float diff_of_products_rn(float a, float b, float c, float d)
-{
-#if defined(__CUDACC__)
-    return __fsub_rn(__fmul_rn(a, b), __fmul_rn(c, d));
-#else
-#pragma OPENCL FP_CONTRACT OFF
-    return a * b - c * d;
-#endif
-}
-
 /* Components of a in the order (kx, ky, kz). */
 RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx), get3(a, ky), get3(a, kz)); }
 
@@ -174,7 +146,7 @@ RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx),
  * moved to the ray origin and sheared so that the ray runs along +z; the 2D edge functions U, V, W
  * of the sheared vertices then depend on the edge's two corners only, so the triangles of a shared
  * edge compute exactly negated values and no ray slips between them. Where an edge function is
- * exactly zero it is recomputed in double (float products are exact there). The shear is
+ * exactly zero it is recomputed in double (float products are exact there; RT_HAS_FP64, rt_port.h). The shear is
  * recomputed per triangle (Ray has no spare fields); the compiler hoists it out of Table 3's loop. */
 RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
 {
@@ -234,23 +206,23 @@ RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
 {
 #if RT_ISECT == RT_ISECT_WALD
     TriWald acc;
-    acc.plane = load_tri_data(RT_WALD_ROWS * tri);
-    acc.eu = load_tri_data(RT_WALD_ROWS * tri + 1);
-    acc.ev = load_tri_data(RT_WALD_ROWS * tri + 2);
+    acc.plane = load_tri_data(tri_data, RT_WALD_ROWS * tri);
+    acc.eu = load_tri_data(tri_data, RT_WALD_ROWS * tri + 1);
+    acc.ev = load_tri_data(tri_data, RT_WALD_ROWS * tri + 2);
     return intersect_ray_tri_wald(ray, &acc, tri, hit);
 #elif RT_ISECT == RT_ISECT_PLUCKER
     TriPlucker acc;
-    acc.d0 = load_tri_data(RT_PLUCKER_ROWS * tri);
-    acc.m0 = load_tri_data(RT_PLUCKER_ROWS * tri + 1);
-    acc.d1 = load_tri_data(RT_PLUCKER_ROWS * tri + 2);
-    acc.m1 = load_tri_data(RT_PLUCKER_ROWS * tri + 3);
-    acc.d2 = load_tri_data(RT_PLUCKER_ROWS * tri + 4);
-    acc.m2 = load_tri_data(RT_PLUCKER_ROWS * tri + 5);
+    acc.d0 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri);
+    acc.m0 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 1);
+    acc.d1 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 2);
+    acc.m1 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 3);
+    acc.d2 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 4);
+    acc.m2 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 5);
     return intersect_ray_tri_plucker(ray, &acc, tri, hit);
 #else
-    float3 v0 = xyz(load_tri_vertex(tri, 0));
-    float3 v1 = xyz(load_tri_vertex(tri, 1));
-    float3 v2 = xyz(load_tri_vertex(tri, 2));
+    float3 v0 = xyz(load_tri_vertex(tris, tri, 0));
+    float3 v1 = xyz(load_tri_vertex(tris, tri, 1));
+    float3 v2 = xyz(load_tri_vertex(tris, tri, 2));
 #if RT_ISECT == RT_ISECT_WATERTIGHT
     return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
 #else
@@ -286,8 +258,8 @@ RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
 {
     if (hit->tri < 0)
         return;
-    float3 v0 = xyz(load_tri_vertex(hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_tri_vertex(hit->tri, 1)), v0), sub3(xyz(load_tri_vertex(hit->tri, 2)), v0));
+    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
+    float3 n = cross3(sub3(xyz(load_tri_vertex(tris, hit->tri, 1)), v0), sub3(xyz(load_tri_vertex(tris, hit->tri, 2)), v0));
     float t = dot3(n, sub3(v0, ray->o)) / dot3(n, ray->d);
     if (t > ray->tmin && t < ray->tmax)
         hit->t = t;

@@ -28,15 +28,7 @@
 #define RT_KD_RESTART_H
 #include "rt_kdtree.h"
 
-#ifndef RT_CONSERVATIVE            /* rt_port.h: 1 when split and box tests are padded */
-#define RT_CONSERVATIVE 0
-#endif
-
-#if defined(__CUDACC__)
-typedef unsigned long long kd_ties_t;
-#else
-typedef ulong kd_ties_t;
-#endif
+typedef rt_u64 kd_ties_t;
 /* One bit per tie on a root-to-leaf path: at most the tree depth, RT_STACK_SIZE - 1 */
 #if RT_STACK_SIZE > 64 && (RT_TRAVERSAL == RT_TRAVERSAL_RESTART || RT_TRAVERSAL == RT_TRAVERSAL_SHORTSTACK \
                            || RT_TRAVERSAL == RT_TRAVERSAL_ROPES)
@@ -172,11 +164,11 @@ RT_FN void traverse_kd_restart(RT_SCENE_PARAMS, float4 scene_min, float4 scene_m
         /* Restart from the root until the segment is used up or a hit lies inside the current
          * cell (a hit on its exit face may tie with a lower-id triangle in the next) */
         while (seg.tmin <= hit->t) {
-            int2 n = load_node(0);
+            int2 n = load_node(nodes, 0);
             while (!kd_is_leaf(n)) {
                 int far;
                 KdSegment far_seg;
-                n = load_node(kd_child_restart(n, ray, &seg, side, &planes, &far, &far_seg));
+                n = load_node(nodes, kd_child_restart(n, ray, &seg, side, &planes, &far, &far_seg));
             }
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)

@@ -112,18 +112,18 @@ RT_FN void traverse_kd_ropes(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
         int node = 0, from_root = 1;
         while (tmin <= hit->t) {
             /* Descend: from the root in kd-restart order, or from a rope's node to the exit point */
-            int2 n = load_node(node);
+            int2 n = load_node(nodes, node);
             while (!kd_is_leaf(n)) {
                 int far;
                 KdSegment far_seg;
                 node = from_root ? kd_child_restart(n, ray, &seg, side, &planes, &far, &far_seg)
                                  : kd_child_rope(n, ray, tmin, t_exit, side, &planes);
-                n = load_node(node);
+                n = load_node(nodes, node);
             }
             int record = KD_ROPES_LEAF_STRIDE * n.y;
-            float4 lo = load_node_data(record);
-            float4 hi = load_node_data(record + 1);
-            float4 first = load_node_data(record + 3);
+            float4 lo = load_node_data(node_data, record);
+            float4 hi = load_node_data(node_data, record + 1);
+            float4 first = load_node_data(node_data, record + 3);
             intersect_leaf(RT_SCENE_ARGS, kd_leaf_objects(n.x, rt_as_int(first.x)), ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)
                 return;
@@ -150,7 +150,7 @@ RT_FN void traverse_kd_ropes(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
                 t_root = rt_max(t_corner, tmin);
                 node = 0;
             } else {
-                node = rope_of_face(lo, hi, load_node_data(record + 2), face);
+                node = rope_of_face(lo, hi, load_node_data(node_data, record + 2), face);
                 if (node < 0)
                     break;
             }

@@ -36,7 +36,7 @@ RT_FN void traverse_kd_shortstack(RT_SCENE_PARAMS, float4 scene_min, float4 scen
         int node = 0;
         KdSegment seg = kd_segment(t_enter, t_exit);
         while (seg.tmin <= hit->t) {
-            int2 n = load_node(node);
+            int2 n = load_node(nodes, node);
             /* Descend, pushing far cells; a full ring forgets its oldest entry */
             while (!kd_is_leaf(n)) {
                 int far;
@@ -48,7 +48,7 @@ RT_FN void traverse_kd_shortstack(RT_SCENE_PARAMS, float4 scene_min, float4 scen
                     stack[top].seg = far_seg;
                     count += count < RT_SHORT_STACK_SIZE;
                 }
-                n = load_node(node);
+                n = load_node(nodes, node);
             }
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)

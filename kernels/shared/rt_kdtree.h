@@ -19,7 +19,7 @@ RT_FN void intersect_leaf(RT_SCENE_PARAMS, int2 leaf, const Ray *ray, Hit *hit, 
 {
     int count = leaf.x >> 2;
     for (int i = 0; i < count; ++i) {
-        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(leaf.y + i), hit) && any_hit)
+        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(objects, leaf.y + i), hit) && any_hit)
             return;
     }
 }
@@ -84,7 +84,7 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
     int sp = 0;
     int node = 0;
     for (;;) {
-        int2 n = load_node(node);
+        int2 n = load_node(nodes, node);
         /* Descend to a leaf, pushing the far child when the segment crosses the split */
         while (!kd_is_leaf(n)) {
             int first, second;
@@ -100,7 +100,7 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
                 tmax = t_split;
             }
             node = first;
-            n = load_node(node);
+            n = load_node(nodes, node);
         }
         intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
         /* Done when no pending cell starts before or at the hit (one starting at it may hold a

@@ -1,4 +1,5 @@
-/* rt_lanes.h - RT_LANES values side by side in one work-item: the SIMD registers of a CPU.
+/* rt_lanes.h - RT_LANES values side by side in one work-item: the SIMD registers of a CPU. Part of
+ * the port layer (rt_port.h): it defines the lane types and their helpers once per language.
  *
  * A GPU runs one ray a thread and forms its SIMD groups (warps) from threads. PoCL on a CPU runs a
  * work-group's work-items one after another and vectorises across them only where the code between

@@ -1,8 +1,10 @@
 /* rt_memory.h - where the scene's buffers live (§3.1.1) and how device code reads them.
  *
- * Traversal and intersection code reads only through these macros and takes RT_SCENE_PARAMS, so it
- * reads the same for every memory placement. This file is the one place that differs by language
- * and by placement (RT_NODE_MEM).
+ * Traversal and intersection code takes RT_SCENE_PARAMS (first, in every function that reads the
+ * scene) and reads the buffers only through the loaders at the end of this file, each given its
+ * buffer as Warp's bvh_load_node(nodes, i) is: load_node(nodes, i), load_tri_vertex(tris, tri, k)...
+ * So it reads the same for every memory placement. This file is the one place that differs by
+ * placement (RT_NODE_MEM); with rt_port.h and rt_lanes.h it is the port layer (rt_port.h).
  *   nodes      int2   kd-tree nodes (rtlab/accel/kdtree.py gives the encoding)
  *   node_data  float4 per-variant node data: ropes and leaf boxes (kd ropes), BVH nodes (bvh);
  *                     a dummy element otherwise
@@ -57,13 +59,13 @@ RT_FN int fetch_int_texture(cudaTextureObject_t tex, int i)
     /* END SOLUTION */
 }
 
-#define load_node(i) fetch_int2_texture(nodes, (i))
-#define load_node_data(i) fetch_float4_texture(node_data, (i))
-#define load_tri_data(i) fetch_float4_texture(tri_data, (i))
-#define load_object(i) fetch_int_texture(objects, (i))
-#define load_tri_vertex(tri, k) fetch_float4_texture(tris, 3 * (tri) + (k))
-#define load_tri_normal(tri, k) fetch_float4_texture(normals, 3 * (tri) + (k))
-#define load_tri_material(tri) fetch_int_texture(tri_materials, (tri))
+#define load_node(nodes, i) fetch_int2_texture((nodes), (i))
+#define load_node_data(node_data, i) fetch_float4_texture((node_data), (i))
+#define load_tri_data(tri_data, i) fetch_float4_texture((tri_data), (i))
+#define load_object(objects, i) fetch_int_texture((objects), (i))
+#define load_tri_vertex(tris, tri, k) fetch_float4_texture((tris), 3 * (tri) + (k))
+#define load_tri_normal(normals, tri, k) fetch_float4_texture((normals), 3 * (tri) + (k))
+#define load_tri_material(tri_materials, tri) fetch_int_texture((tri_materials), (tri))
 #elif RT_NODE_MEM == RT_MEM_TEXTURE
 /* Images over the buffers (image1d_buffer_t; NVIDIA's OpenCL and PoCL both have them). */
 #define RT_SCENE_PARAMS                                                                         \
@@ -98,13 +100,13 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
     /* END SOLUTION */
 }
 
-#define load_node(i) fetch_int2_image(nodes, (i))
-#define load_node_data(i) fetch_float4_image(node_data, (i))
-#define load_tri_data(i) fetch_float4_image(tri_data, (i))
-#define load_object(i) fetch_int_image(objects, (i))
-#define load_tri_vertex(tri, k) fetch_float4_image(tris, 3 * (tri) + (k))
-#define load_tri_normal(tri, k) fetch_float4_image(normals, 3 * (tri) + (k))
-#define load_tri_material(tri) fetch_int_image(tri_materials, (tri))
+#define load_node(nodes, i) fetch_int2_image((nodes), (i))
+#define load_node_data(node_data, i) fetch_float4_image((node_data), (i))
+#define load_tri_data(tri_data, i) fetch_float4_image((tri_data), (i))
+#define load_object(objects, i) fetch_int_image((objects), (i))
+#define load_tri_vertex(tris, tri, k) fetch_float4_image((tris), 3 * (tri) + (k))
+#define load_tri_normal(normals, tri, k) fetch_float4_image((normals), 3 * (tri) + (k))
+#define load_tri_material(tri_materials, tri) fetch_int_image((tri_materials), (tri))
 #elif defined(__CUDACC__)
 /* Read-only data path: const __restrict__ plus __ldg (the non-texture read-only cache). */
 #define RT_SCENE_PARAMS                                                                         \
@@ -112,28 +114,29 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
         const int *__restrict__ objects, const float4 *__restrict__ tris,                       \
         const float4 *__restrict__ tri_data, const float4 *__restrict__ normals,                \
         const int *__restrict__ tri_materials
-#define load_node(i) __ldg(&nodes[(i)])
-#define load_node_data(i) __ldg(&node_data[(i)])
-#define load_tri_data(i) __ldg(&tri_data[(i)])
-#define load_object(i) __ldg(&objects[(i)])
-#define load_tri_vertex(tri, k) __ldg(&tris[3 * (tri) + (k)])
-#define load_tri_normal(tri, k) __ldg(&normals[3 * (tri) + (k)])
-#define load_tri_material(tri) __ldg(&tri_materials[(tri)])
+#define load_node(nodes, i) __ldg(&(nodes)[(i)])
+#define load_node_data(node_data, i) __ldg(&(node_data)[(i)])
+#define load_tri_data(tri_data, i) __ldg(&(tri_data)[(i)])
+#define load_object(objects, i) __ldg(&(objects)[(i)])
+#define load_tri_vertex(tris, tri, k) __ldg(&(tris)[3 * (tri) + (k)])
+#define load_tri_normal(normals, tri, k) __ldg(&(normals)[3 * (tri) + (k)])
+#define load_tri_material(tri_materials, tri) __ldg(&(tri_materials)[(tri)])
 #else
 #define RT_SCENE_PARAMS                                                                         \
     __global const int2 *restrict nodes, __global const float4 *restrict node_data,             \
         __global const int *restrict objects, __global const float4 *restrict tris,             \
         __global const float4 *restrict tri_data, __global const float4 *restrict normals,      \
         __global const int *restrict tri_materials
-#define load_node(i) nodes[(i)]
-#define load_node_data(i) node_data[(i)]
-#define load_tri_data(i) tri_data[(i)]
-#define load_object(i) objects[(i)]
-#define load_tri_vertex(tri, k) tris[3 * (tri) + (k)]
-#define load_tri_normal(tri, k) normals[3 * (tri) + (k)]
-#define load_tri_material(tri) tri_materials[(tri)]
+#define load_node(nodes, i) (nodes)[(i)]
+#define load_node_data(node_data, i) (node_data)[(i)]
+#define load_tri_data(tri_data, i) (tri_data)[(i)]
+#define load_object(objects, i) (objects)[(i)]
+#define load_tri_vertex(tris, tri, k) (tris)[3 * (tri) + (k)]
+#define load_tri_normal(normals, tri, k) (normals)[3 * (tri) + (k)]
+#define load_tri_material(tri_materials, tri) (tri_materials)[(tri)]
 #endif
 
+/* RT_SCENE_PARAMS' names, to pass them on */
 #define RT_SCENE_ARGS nodes, node_data, objects, tris, tri_data, normals, tri_materials
 
 #endif /* RT_MEMORY_H */

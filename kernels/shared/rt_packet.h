@@ -12,23 +12,13 @@
  * barriers. The paper found the packet slow on CUDA (15.8 vs 43.2 fps): two barriers per node.
  *
  * Entry kernels declare the KdPacketShared at kernel scope (kernels/cuda/03_traversal.cu,
- * kernels/opencl/03_traversal.cl): OpenCL allows __local variables only there.
+ * kernels/opencl/03_traversal.cl): OpenCL allows __local variables only there. Pointers to it are
+ * RT_SHARED_PTR; barriers and the votes' atomics are rt_port.h's rt_barrier, rt_shared_atomic_add.
  */
 #ifndef RT_PACKET_H
 #define RT_PACKET_H
 #include "rt_kdtree.h"
 #include "rt_shade.h"
-
-/* ---- Language split for block-wide memory and barriers ---- */
-#if defined(__CUDACC__)
-#define RT_SHARED_PTR              /* a pointer to __shared__ memory: generic address space */
-#define rt_barrier() __syncthreads()
-#define rt_shared_atomic_add(p, v) atomicAdd((p), (v))
-#else
-#define RT_SHARED_PTR __local
-#define rt_barrier() barrier(CLK_LOCAL_MEM_FENCE)
-#define rt_shared_atomic_add(p, v) atomic_add((p), (v))
-#endif
 
 /* The packet's shared state (about 36 B per stack entry + 64 B) */
 typedef struct {
@@ -117,7 +107,7 @@ RT_FN void traverse_kd_packet(RT_SCENE_PARAMS, float4 scene_min, float4 scene_ma
         int node = sh->node;
         if (node < 0)
             break;
-        int2 n = load_node(node);
+        int2 n = load_node(nodes, node);
         int first = -1, second = -1, visit = 0;
         float t_split = 0.0f;
         live = live && tmin <= hit->t && !(any_hit && hit->tri >= 0);

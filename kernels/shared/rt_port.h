@@ -1,9 +1,12 @@
 /* rt_port.h - the portability layer: one source of device code for two languages.
  *
  * Compiled as CUDA C++ by nvcc (sm_90; pycuda) and as OpenCL C by NVIDIA's OpenCL 3.0 and PoCL.
- * Everything that differs by language is here or in rt_memory.h; algorithm headers include this file
- * and are written in the C both languages accept: no references, templates, overloads or default
- * arguments; results come back through a pointer (Hit *hit).
+ * The port layer is three headers, the only ones that test __CUDACC__ (tests/test_kernel_sources.py
+ * checks): this one (qualifiers, math, atomics, barriers, double precision), rt_memory.h (where the
+ * scene's buffers live and how they are read) and rt_lanes.h (SIMD lane vectors of the CPU packet
+ * traversal). Algorithm headers include them and are written in the C both languages accept: no
+ * references, templates, overloads or default arguments; results come back through a pointer
+ * (Hit *hit). Entry kernels (kernels/cuda/, kernels/opencl/) spell the rest their own way.
  *
  * Pitfall: float3 is 12 bytes in CUDA and 16 in OpenCL. It is used only in registers, never in a
  * buffer shared with the host (those are float4, mirrored by numpy dtypes in rtlab/layout.py).
@@ -11,8 +14,8 @@
 #ifndef RT_PORT_H
 #define RT_PORT_H
 
-/* ---- Variants: compile-time switches. rtlab/kernels.py passes -D for each; these are the defaults. */
-/* Codes shared with rtlab/kernels.py (TRAVERSALS, INTERSECTIONS, NODE_MEMORY). */
+/* ---- Variants: compile-time switches. rtlab/device/kernels.py passes -D for each; these are the
+ * defaults. The host reads the codes from this file (rtlab/device/constants.py): one source. */
 #define RT_ISECT_MOLLER 0          /* Moller & Trumbore 1997 (Table 3, MT) */
 #define RT_ISECT_WALD 1            /* Wald 2004 projection test, precomputed data (Table 3) */
 #define RT_ISECT_PLUCKER 2         /* Plucker coordinates, precomputed (Table 3) */
@@ -76,6 +79,7 @@
 #define RT_KERNEL extern "C" __global__
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
 #define RT_CONST
+#define RT_SHARED_PTR               /* a pointer to block-wide (__shared__) memory: generic address space */
 #define RT_INF __int_as_float(0x7f800000)
 #define rt_as_float(i) __int_as_float(i)
 #define rt_as_int(f) __float_as_int(f)
@@ -84,9 +88,15 @@
 #define rt_max fmaxf
 #define rt_abs fabsf
 #define rt_sqrt sqrtf
+#define rt_pow powf
 #define rt_isfinite isfinite
+#define rt_barrier() __syncthreads()                          /* a block's threads meet */
+#define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
+#define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
+typedef unsigned long long rt_u64;
 RT_FN float3 f3(float x, float y, float z) { return make_float3(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z, w); }
+RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #else /* OpenCL C */
 #define RT_FN static inline
 #define RT_KERNEL __kernel
@@ -96,6 +106,7 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 #else
 #define RT_CONST __constant
 #endif
+#define RT_SHARED_PTR __local
 #define RT_INF INFINITY
 #define rt_as_float(i) as_float(i)
 #define rt_as_int(f) as_int(f)
@@ -104,10 +115,53 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 #define rt_max fmax
 #define rt_abs fabs
 #define rt_sqrt sqrt
+#define rt_pow pow
 #define rt_isfinite isfinite
+#define rt_barrier() barrier(CLK_LOCAL_MEM_FENCE)
+#define rt_shared_atomic_add(p, v) atomic_add((p), (v))
+#define rt_atomic_inc(p) atomic_inc(p)
+typedef ulong rt_u64;
 RT_FN float3 f3(float x, float y, float z) { return (float3)(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return (float4)(x, y, z, w); }
+/* OpenCL 1.2 has no float atomics: compare-and-swap on the bits. */
+RT_FN void rt_atomic_add_float(volatile RT_GLOBAL float *p, float v)
+{
+    volatile RT_GLOBAL unsigned int *bits = (volatile RT_GLOBAL unsigned int *)p;
+    unsigned int seen = *bits, expected;
+    do {
+        expected = seen;
+        seen = atomic_cmpxchg(bits, expected, as_uint(as_float(expected) + v));
+    } while (seen != expected);
+}
 #endif
+
+/* ---- Double precision (the watertight test's fallback, rt_intersect.h): always in CUDA, in OpenCL
+ * where the device has cl_khr_fp64; -DRT_HAS_FP64=0 forces the float-only path. */
+#ifndef RT_HAS_FP64
+#if defined(__CUDACC__)
+#define RT_HAS_FP64 1
+#elif defined(cl_khr_fp64)
+#define RT_HAS_FP64 1
+#else
+#define RT_HAS_FP64 0
+#endif
+#endif
+#if RT_HAS_FP64 && !defined(__CUDACC__)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+/* a*b - c*d with each product rounded on its own. A fused multiply-add would round the two
+ * products differently, and the edge function of a shared edge would no longer be exactly the
+ * negation of its neighbour's (Woop et al. 2013 assume no contraction). */
+RT_FN float diff_of_products_rn(float a, float b, float c, float d)
+{
+#if defined(__CUDACC__)
+    return __fsub_rn(__fmul_rn(a, b), __fmul_rn(c, d));
+#else
+#pragma OPENCL FP_CONTRACT OFF
+    return a * b - c * d;
+#endif
+}
 
 /* ---- Vector helpers (OpenCL has operators on float3, CUDA does not: use these everywhere) ---- */
 RT_FN float3 xyz(float4 a) { return f3(a.x, a.y, a.z); }

@@ -13,13 +13,13 @@ RT_FN float3 hit_normal(RT_SCENE_PARAMS, const Ray *ray, const Hit *hit)
 {
 #if RT_SMOOTH_NORMALS
     float w = 1.0f - hit->u - hit->v;
-    float3 n = mul3(xyz(load_tri_normal(hit->tri, 0)), w);
-    n = madd3(n, xyz(load_tri_normal(hit->tri, 1)), hit->u);
-    n = madd3(n, xyz(load_tri_normal(hit->tri, 2)), hit->v);
+    float3 n = mul3(xyz(load_tri_normal(normals, hit->tri, 0)), w);
+    n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
+    n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v);
 #else
-    float3 v0 = xyz(load_tri_vertex(hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_tri_vertex(hit->tri, 1)), v0),
-                      sub3(xyz(load_tri_vertex(hit->tri, 2)), v0));
+    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
+    float3 n = cross3(sub3(xyz(load_tri_vertex(tris, hit->tri, 1)), v0),
+                      sub3(xyz(load_tri_vertex(tris, hit->tri, 2)), v0));
 #endif
     n = normalize3(n);
     return dot3(n, ray->d) > 0.0f ? mul3(n, -1.0f) : n;
@@ -34,7 +34,7 @@ RT_FN float3 shade_lambert(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CO
         return xyz(frame->background);
     float3 p = madd3(ray->o, ray->d, hit->t);
     float3 n = hit_normal(RT_SCENE_ARGS, ray, hit);
-    float3 kd = xyz(materials[load_tri_material(hit->tri)].diffuse);
+    float3 kd = xyz(materials[load_tri_material(tri_materials, hit->tri)].diffuse);
     float ambient = frame->background.w;
     float3 c = mul3(kd, ambient);
     for (int i = 0; i < frame->n_lights; ++i) {
@@ -99,23 +99,23 @@ RT_FN float position_error(float3 v0, float3 v1, float3 v2)
 RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
 {
     Surface s;
-    float3 v0 = xyz(load_tri_vertex(hit->tri, 0));
-    float3 v1 = xyz(load_tri_vertex(hit->tri, 1));
-    float3 v2 = xyz(load_tri_vertex(hit->tri, 2));
+    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
+    float3 v1 = xyz(load_tri_vertex(tris, hit->tri, 1));
+    float3 v2 = xyz(load_tri_vertex(tris, hit->tri, 2));
     s.p = hit_position(v0, v1, v2, hit);
     s.p_err = position_error(v0, v1, v2);
     float3 ng = normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
     s.front = dot3(ng, d) < 0.0f;
     s.ng = s.front ? ng : mul3(ng, -1.0f);
 #if RT_SMOOTH_NORMALS
-    float3 ns = mul3(xyz(load_tri_normal(hit->tri, 0)), 1.0f - hit->u - hit->v);
-    ns = madd3(ns, xyz(load_tri_normal(hit->tri, 1)), hit->u);
-    ns = normalize3(madd3(ns, xyz(load_tri_normal(hit->tri, 2)), hit->v));
+    float3 ns = mul3(xyz(load_tri_normal(normals, hit->tri, 0)), 1.0f - hit->u - hit->v);
+    ns = madd3(ns, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
+    ns = normalize3(madd3(ns, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v));
     s.ns = dot3(ns, d) > 0.0f ? mul3(ns, -1.0f) : ns;
 #else
     s.ns = s.ng;
 #endif
-    s.material = load_tri_material(hit->tri);
+    s.material = load_tri_material(tri_materials, hit->tri);
     return s;
 }
 

@@ -1,6 +1,6 @@
 /* rt_types.h - structs shared by host and device. Every struct that crosses to the host uses float4
- * and 4-byte scalars only and is mirrored by a numpy dtype in rtlab/layout.py ("sync with layout.py");
- * tests/test_layout.py checks the sizes on the device. */
+ * and 4-byte scalars only and is mirrored by a numpy dtype in rtlab/device/layout.py ("sync with
+ * layout.py"); tests/test_kernel_sources.py checks the sizes on the device (sizeof in a kernel). */
 #ifndef RT_TYPES_H
 #define RT_TYPES_H
 #include "rt_port.h"

@@ -26,22 +26,8 @@
 #define RT_WAVEFRONT_H
 #include "rt_whitted.h"
 
-#if defined(__CUDACC__)
-RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
-#else
-/* OpenCL 1.2 has no float atomics: compare-and-swap on the bits. */
-RT_FN void rt_atomic_add_float(volatile RT_GLOBAL float *p, float v)
-{
-    volatile RT_GLOBAL unsigned int *bits = (volatile RT_GLOBAL unsigned int *)p;
-    unsigned int seen = *bits, expected;
-    do {
-        expected = seen;
-        seen = atomic_cmpxchg(bits, expected, as_uint(as_float(expected) + v));
-    } while (seen != expected);
-}
-#endif
-
-/* Add colour c to a pixel that other rays of the same launch may also add to. */
+/* Add colour c to a pixel that other rays of the same launch may also add to (rt_atomic_add_float:
+ * rt_port.h). */
 RT_FN void add_rgb_atomic(RT_GLOBAL float4 *frame_rgb, int pixel, float3 c)
 {
     RT_GLOBAL float *p = (RT_GLOBAL float *)(frame_rgb + pixel);

@@ -25,7 +25,7 @@
 #define RT_WHITTED_H
 #include "rt_primary.h"
 
-/* ---- Compile-time switches (rtlab/kernels.py build_defines; rtlab/whitted.py). The defaults are
+/* ---- Compile-time switches (rtlab/device/kernels.py build_defines; rtlab/device/whitted.py). The defaults are
  * the general kernel: everything compiled in. A scene-specialised kernel switches off what its
  * scene cannot use; the image does not change. */
 #ifndef RT_LIGHTS                  /* 0: the scene has no lights: no lighting loop */
@@ -55,18 +55,10 @@
 #ifndef RT_WAVEFRONT               /* 1: one launch per level over a ray queue (rt_wavefront.h) */
 #define RT_WAVEFRONT 0
 #endif
-#define RT_MIN_WEIGHT (1.0f / 512.0f)  /* sync with rtlab/scene/materials.py MIN_WEIGHT */
+#define RT_MIN_WEIGHT (1.0f / 512.0f)  /* the host reads it (rtlab/device/constants.py) */
 #define RT_RAY_REFLECTION 0
 #define RT_RAY_REFRACTION 1
 #define RT_NO_RAY (-2)             /* tri of a record whose ray was not spawned (-1: spawned, missed) */
-
-#if defined(__CUDACC__)
-#define rt_atomic_inc(p) atomicAdd((p), 1)
-#define rt_pow powf
-#else
-#define rt_atomic_inc(p) atomic_inc(p)
-#define rt_pow pow
-#endif
 
 /* ---- Spawning rays off a surface ------------------------------------------------------------ */
 
@@ -327,11 +319,11 @@ RT_FN int probe_visible(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 d
  * all, is alive at once (the paper's count). Each node adds weight * colour to a float4 frame. */
 
 /* Parents of further rays: hits on a material that reflects or transmits. */
-RT_FN int spawns_children(RT_CONST const RtMaterial *materials, RT_SCENE_PARAMS, const Hit *hit)
+RT_FN int spawns_children(RT_SCENE_PARAMS, RT_CONST const RtMaterial *materials, const Hit *hit)
 {
     if (hit->tri < 0)
         return 0;
-    RT_CONST const RtMaterial *m = &materials[load_tri_material(hit->tri)];
+    RT_CONST const RtMaterial *m = &materials[load_tri_material(tri_materials, hit->tri)];
     return m->reflectivity + m->transparency > 0.0f;
 }
 
@@ -346,7 +338,7 @@ RT_FN void add_rgb(RT_GLOBAL float4 *frame_rgb, int pixel, float3 c)
  * RT_WRITE_HITS (the host reads the ray tree) every spawned ray, the last level included.
  * Uncompacted, a slot is always written (weight 0: no ray), since the buffer is reused by the
  * node's siblings; compacted, kept rays are appended and the count is the next launch's size. */
-RT_FN void write_record(RT_CONST const RtMaterial *materials, RT_SCENE_PARAMS, int level, int slot,
+RT_FN void write_record(RT_SCENE_PARAMS, RT_CONST const RtMaterial *materials, int level, int slot,
                         int pixel, float3 d, float w, Hit hit, int spawned, RT_GLOBAL float4 *dirs_out,
                         RT_GLOBAL float4 *hits_out, RT_GLOBAL int *pixels_out, RT_GLOBAL int *count_out)
 {
@@ -355,7 +347,7 @@ RT_FN void write_record(RT_CONST const RtMaterial *materials, RT_SCENE_PARAMS, i
 #else
     if (level >= RT_MAX_DEPTH)
         return;
-    int keep = spawned && spawns_children(materials, RT_SCENE_ARGS, &hit);
+    int keep = spawned && spawns_children(RT_SCENE_ARGS, materials, &hit);
 #endif
     if (!spawned)
         hit.tri = RT_NO_RAY;
@@ -384,7 +376,7 @@ RT_FN void trace_tree_primary(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT
     float3 c = shade_hit(RT_SCENE_ARGS, frame, lights, materials, ray.d, &hit);
     frame_rgb[pixel] = f4(c.x, c.y, c.z, 1.0f);
 #endif
-    write_record(materials, RT_SCENE_ARGS, 0, pixel, pixel, ray.d, 1.0f, hit, 1, dirs_out, hits_out,
+    write_record(RT_SCENE_ARGS, materials, 0, pixel, pixel, ray.d, 1.0f, hit, 1, dirs_out, hits_out,
                  pixels_out, count_out);
 }
 
@@ -419,7 +411,7 @@ RT_FN void trace_tree_secondary(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, 
         add_rgb(frame_rgb, pixel, mul3(shade_hit(RT_SCENE_ARGS, frame, lights, materials, child.d, &hit), w));
 #endif
     }
-    write_record(materials, RT_SCENE_ARGS, level, slot, pixel, spawned ? child.d : f3(0.0f, 0.0f, 0.0f), w,
+    write_record(RT_SCENE_ARGS, materials, level, slot, pixel, spawned ? child.d : f3(0.0f, 0.0f, 0.0f), w,
                  hit, spawned, dirs_out, hits_out, pixels_out, count_out);
 }
 

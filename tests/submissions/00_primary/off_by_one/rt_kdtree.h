@@ -9,7 +9,7 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
     int sp = 0;
     int node = 0;
     for (;;) {
-        int2 n = load_node(node);
+        int2 n = load_node(nodes, node);
         /* Descend to a leaf, pushing the far child when the segment crosses the split */
         while (!kd_is_leaf(n)) {
             int first, second;
@@ -25,7 +25,7 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
                 tmax = t_split;
             }
             node = first;
-            n = load_node(node);
+            n = load_node(nodes, node);
         }
         intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
         /* Done when no pending cell starts before the hit: the stack holds every unvisited cell

@@ -15,7 +15,7 @@ RT_FN void traverse_kd_restart(RT_SCENE_PARAMS, float4 scene_min, float4 scene_m
         float tmin = t_enter;
         while (tmin < hit->t) {
             float tmax = t_exit;
-            int2 n = load_node(0);
+            int2 n = load_node(nodes, 0);
             while (!kd_is_leaf(n)) {
                 int first, second;
                 float t_split;
@@ -23,17 +23,17 @@ RT_FN void traverse_kd_restart(RT_SCENE_PARAMS, float4 scene_min, float4 scene_m
                 if (visit == 3) {
                     int axis = n.x & 3;
                     planes |= 1 << axis;
-                    n = load_node(((side >> axis) & 1) ? second : first);
+                    n = load_node(nodes, ((side >> axis) & 1) ? second : first);
                     continue;
                 }
                 if (visit == 2) {
                     if (t_split <= tmin) {          /* the split at or before tmin: far child */
-                        n = load_node(second);
+                        n = load_node(nodes, second);
                         continue;
                     }
                     tmax = rt_min(tmax, t_split);
                 }
-                n = load_node(first);
+                n = load_node(nodes, first);
             }
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)
