@@ -24,12 +24,13 @@ import time
 import numpy as np
 
 from rtlab.backends import get_backend
-from rtlab.kernels import Variant
+from rtlab.device.kernels import Variant
 from rtlab.reference import compare_hits, reference_trace
-from rtlab.rendering import render
+from rtlab.device.rendering import render
 from rtlab.scene import load_scene
 from rtlab.scene.presets import bench_camera, bench_view_names
-from rtlab.tracing import camera_rays, trace
+from rtlab.device.tracing import trace
+from rtlab.scene.model import camera_rays
 
 TESTS = ("moller", "watertight")
 

@@ -22,10 +22,10 @@ from rtlab import load_scene
 from rtlab.accel.bvh import build_bvh
 from rtlab.accel.kdtree import KdBuildParams, build_kdtree, kd_stats
 from rtlab.backends import get_backend
-from rtlab.kernels import Variant
-from rtlab.rendering import render
+from rtlab.device.kernels import Variant
+from rtlab.device.rendering import render
 from rtlab.scene.model import Scene
-from rtlab.tracing import device_scene
+from rtlab.device.scene import device_scene
 
 BUILDS = {"kd, no flat cells": KdBuildParams(flat_cells=False), "kd, flat cells": KdBuildParams()}
 

@@ -26,7 +26,7 @@ def child(args) -> int:
     from rtlab.backends import get_backend
     from rtlab.benches.cpu import EmbreeTracer, bench_cpu
     from rtlab.benches.rays import make_rays
-    from rtlab.kernels import Variant
+    from rtlab.device.kernels import Variant
     backend = get_backend("opencl", os.environ.get("RTLAB_DEVICE", "cpu"))
     rows = []
     for view in args.views.split(","):

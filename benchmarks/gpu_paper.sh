@@ -52,7 +52,7 @@ run 30 python -m rtlab info
 run 120 python -c "
 import sys, time
 from rtlab.scene import load_scene
-from rtlab.device_scene import scene_kdtree
+from rtlab.device.scene import scene_kdtree
 for name in sys.argv[1].split(','):
     t = time.time(); scene_kdtree(load_scene(name)); print(name, 'kd-tree', round(time.time() - t, 1), 's')
 " "$SCENES"

@@ -13,8 +13,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rtlab.backends import get_backend  # noqa: E402
 from rtlab.benches.rays import view_scene  # noqa: E402
-from rtlab.kernels import Variant  # noqa: E402
-from rtlab.rendering import render  # noqa: E402
+from rtlab.device.kernels import Variant  # noqa: E402
+from rtlab.device.rendering import render  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--views", default="bunny/far,bunny/fill,sponza/inside,conference/inside")

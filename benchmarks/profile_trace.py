@@ -29,9 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rtlab.backends import get_backend  # noqa: E402
 from rtlab.benches.rays import make_rays  # noqa: E402
-from rtlab.kernels import Variant, load_program, primary_step  # noqa: E402
-from rtlab.layout import float4_rows  # noqa: E402
-from rtlab.tracing import TRACE_BLOCK, device_scene, ray_buffers, trace  # noqa: E402
+from rtlab.device.kernels import Variant, load_program, primary_step  # noqa: E402
+from rtlab.device.layout import float4_rows  # noqa: E402
+from rtlab.device.tracing import TRACE_BLOCK, ray_buffers, trace  # noqa: E402
+from rtlab.device.scene import device_scene
 
 
 def _backend(spec: str):
@@ -118,7 +119,7 @@ def main(argv=None) -> int:
 
 
 def sweep_case(batch, backends, a) -> list[dict]:
-    import rtlab.tracing as tracing
+    import rtlab.device.tracing as tracing
     from rtlab.reference import compare_hits
     rows = []
     idx = batch.check_index

@@ -16,10 +16,10 @@ from collections import defaultdict
 import numpy as np
 
 from rtlab.backends import get_backend
-from rtlab.kernels import Variant
+from rtlab.device.kernels import Variant
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
-from rtlab.whitted import render_whitted
+from rtlab.device.whitted import render_whitted
 
 
 def parse_config(text: str):

@@ -33,7 +33,7 @@ import numpy as np
 import rtlab
 from rtlab.backends import get_backend
 from rtlab.labs.trees import kernel_tree_summary
-from rtlab.check import check_render
+from rtlab.reference.check import check_render
 from rtlab.paths import find_scene_file
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))      # keep <= 128 on PoCL
@@ -126,7 +126,7 @@ plt.show()
 # float64. `rtlab inspect SCENE --pixel X Y` opens the same view in a window.
 
 # %%
-from rtlab.inspect import inspect_scene
+from rtlab.viz import inspect_scene
 
 scene = scenes[-1]
 hit_pixels = np.flatnonzero(results[scene.name][0].hits.tri >= 0)

@@ -35,7 +35,7 @@ import rtlab
 from rtlab.backends import get_backend
 from rtlab.labs.trees import kernel_tree_summary
 from rtlab.benches.memory import PLACEMENTS, bench_memory, compiler_report
-from rtlab.nvcc import nvcc_available
+from rtlab.backends.nvcc import nvcc_available
 from rtlab.paths import find_scene_file
 
 SIZE = min(int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96)), 96)    # PoCL: keep <= 96

@@ -30,7 +30,7 @@ import rtlab
 from rtlab.backends import get_backend
 from rtlab.labs.trees import kernel_tree_summary
 from rtlab.benches.intersect import check_loop, intersect_loop
-from rtlab.check import check_render
+from rtlab.reference.check import check_render
 from rtlab.paths import find_scene_file
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))
@@ -86,7 +86,7 @@ plt.show()
 # The pixel's ray with the projection test, its hit and the kd-tree leaves the stack traversal visited.
 
 # %%
-from rtlab.inspect import inspect_scene
+from rtlab.viz import inspect_scene
 
 hits = renders["wald"][0].hits.tri
 px = int(np.flatnonzero(hits >= 0)[len(np.flatnonzero(hits >= 0)) // 3])

@@ -27,8 +27,8 @@ import numpy as np
 import rtlab
 from rtlab.backends import get_backend
 from rtlab.labs.trees import kernel_tree_summary
-from rtlab.check import check_render
-from rtlab.kernels import TRAVERSALS
+from rtlab.reference.check import check_render
+from rtlab.device.kernels import TRAVERSALS
 from rtlab.paths import find_scene_file
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))
@@ -76,7 +76,7 @@ plt.show()
 # leaves but walks down from the root before each one; ropes jump from leaf to leaf.
 
 # %%
-from rtlab.inspect import inspect_scene
+from rtlab.viz import inspect_scene
 
 hits = rows["stack"][0].hits.tri
 seen = np.flatnonzero(hits >= 0)

@@ -25,11 +25,11 @@ import os
 import matplotlib.pyplot as plt      # in Jupyter: static PNG figures (inline backend, drawn by Agg)
 
 from rtlab.backends import get_backend
-from rtlab.kernels import Variant
+from rtlab.device.kernels import Variant
 from rtlab.labs.trees import kernel_tree_summary
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import glass_scene
-from rtlab.whitted import render_whitted
+from rtlab.device.whitted import render_whitted
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))
 backend = get_backend(os.environ.get("RTLAB_BACKEND", "opencl"))
@@ -69,10 +69,10 @@ plt.show()
 # %% [markdown]
 # ## One pixel's ray tree in 3-D
 # Yellow primary, red reflection, green refraction, blue shadow rays (dark when blocked), red dots at
-# the hits; the rays come from the kernels' own spawn functions (rtlab.whitted.probe_*).
+# the hits; the rays come from the kernels' own spawn functions (rtlab.device.whitted.probe_*).
 
 # %%
-from rtlab.inspect import inspect_scene
+from rtlab.viz import inspect_scene
 
 view = inspect_scene(scene, depth=4, pixel=(SIZE // 2, int(SIZE * 0.47)), size=SIZE, screenshot="05_inspect.png",
                      backend=backend, window_size=(800, 600))

@@ -19,7 +19,7 @@ from .paths import ensure_user_cache  # noqa: E402
 ensure_user_cache()    # without a writable home, caches go to the temporary directory
 
 from .errors import RtlabError  # noqa: E402
-from .kernels import Variant  # noqa: E402
+from .device.kernels import Variant  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -29,11 +29,14 @@ def __getattr__(name):
     if name in ("load_scene", "list_scenes"):
         from . import scene
         return getattr(scene, name)
-    if name in ("trace", "camera_rays"):
-        from . import tracing
-        return getattr(tracing, name)
+    if name == "trace":
+        from .device.tracing import trace
+        return trace
+    if name == "camera_rays":
+        from .scene.model import camera_rays
+        return camera_rays
     if name == "render":
-        from .rendering import render
+        from .device.rendering import render
         return render
     if name == "get_backend":
         from .backends import get_backend

@@ -3,7 +3,7 @@ layout, its launch shapes, and `rtlab bench cpu` against Embree.
 
 The packet traversal is also in tests/test_traversal.py's VARIANTS (camera, random and split-plane
 rays on the paper's scenes against the stack traversal and the float64 reference, any-hit against
-closest-hit, renders) and in the robustness suite through rtlab.kernels.TRAVERSALS. Here: what is
+closest-hit, renders) and in the robustness suite through rtlab.device.kernels.TRAVERSALS. Here: what is
 particular to packets, namely partial packets, lanes without a ray next to lanes with one, per-lane
 tmin/tmax, the single-ray path the shading kernels take, and the host layout checked against the
 mesh independently of the builder.
@@ -16,12 +16,13 @@ import pytest
 import rtlab
 from rtlab.accel.bvh import LEAF_BITS, build_bvh
 from rtlab.accel.bvh_packet import EMPTY, TRI_ROWS, node_rows, packet_node_data
-from rtlab.check import check_render
+from rtlab.reference.check import check_render
 from rtlab.errors import VariantError
-from rtlab.kernels import PACKET_LANES, SceneFeatures, Variant, build_defines, primary_step, rays_per_work_item
+from rtlab.device.kernels import PACKET_LANES, SceneFeatures, Variant, build_defines, primary_step, rays_per_work_item
 from rtlab.reference import compare_hits, reference_trace
-from rtlab.rendering import render
-from rtlab.tracing import camera_rays, trace
+from rtlab.device.rendering import render
+from rtlab.device.tracing import trace
+from rtlab.scene.model import camera_rays
 
 PACKET = Variant("bvh-packet")
 
@@ -106,7 +107,7 @@ def test_render_any_width_and_the_single_ray_path(backend, default_scene):
     """render_primary takes 8 pixels of a row a work-item: a width that is no multiple of 8 and
     a block narrower than a packet. The shadow kernels (lab step 04) send one ray at a time
     through the packet traversal (one lane): same image as the scalar BVH there."""
-    from rtlab.whitted import render_whitted
+    from rtlab.device.whitted import render_whitted
     scene = default_scene
     for width, block in ((37, (32, 4)), (21, (4, 2))):
         result = render(scene, backend, Variant("bvh-packet", block=block), size=width, write_hits=True)
@@ -185,7 +186,7 @@ def test_loader_shapes_and_refusals():
 
 def test_fused_box_test_needs_coordinates_below_the_overflow_bound():
     """b inv with inv up to 2^64 must stay finite in float32: huge scenes keep the exact form."""
-    from rtlab.device_scene import near_origin
+    from rtlab.device.scene import near_origin
     from rtlab.scene.model import Camera, Material, Scene
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
     mk = lambda s: Scene("s", tri * s, np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32), [Material()],
@@ -208,12 +209,12 @@ def test_cpu_device_by_type():
     assert be.device.type & cl.device_type.CPU
 
 
-@pytest.mark.skipif(not __import__("rtlab.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
+@pytest.mark.skipif(not __import__("rtlab.backends.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
 def test_packet_kernels_compile_as_cuda():
     """The lane helpers have a CUDA form (arrays and loops): lab step 00 compiles with the packet
     traversal, for the fused and the conservative box test."""
-    from rtlab.kernels import kernel_source
-    from rtlab.nvcc import nvcc_resources
+    from rtlab.device.kernels import kernel_source
+    from rtlab.backends.nvcc import nvcc_resources
     for v in (PACKET, Variant("bvh-packet", intersection="watertight")):
         report = nvcc_resources(kernel_source("00_primary", "cuda"),
                                 build_defines(v, SceneFeatures(stack_size=30, near_origin=True)))

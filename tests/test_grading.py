@@ -38,7 +38,7 @@ from rtlab.labs.results import gradescope_dict
 from rtlab.labs.submission import check_source, tree_rules
 from rtlab.labs.trees import (build_student_tree, find_submitted_file, kernel_files, region_owners, template_text,
                               tree_stubs)
-from rtlab.nvcc import nvcc_available
+from rtlab.backends.nvcc import nvcc_available
 from rtlab.paths import PROJECT_DIR
 
 STEP = "00_primary"
@@ -222,7 +222,7 @@ def test_every_solution_region_belongs_to_a_lab_and_no_lab_needs_a_later_one():
     """Each marked region is some lab's, and the pipeline every lab runs on (the default variant:
     camera, stack traversal, the given Moller-Trumbore test) needs no later step's solution: the
     student tree of a lab stubs the later steps without breaking it."""
-    from rtlab.kernels import SceneFeatures, Variant, build_defines
+    from rtlab.device.kernels import SceneFeatures, Variant, build_defines
     from rtlab.labs.cpp import Preprocessor
     owners = region_owners()
     root = PROJECT_DIR / "kernels"
@@ -866,7 +866,7 @@ def test_speed_score_is_relative():
 def test_camera_check_names_the_mistake():
     """The camera test's hints, on host-made rays with a known mistake (no kernel needed)."""
     from rtlab.scene.model import Camera
-    from rtlab.tracing import camera_rays
+    from rtlab.scene.model import camera_rays
     cam = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0), width=40, height=24)
     o, d = camera_rays(cam)
     tol = {"direction_abs": 1e-5, "origin_rel": 1e-6}

@@ -1,4 +1,4 @@
-"""Scene inspection (rtlab.inspect): kd-tree cells that partition the root box, drawn as one line
+"""Scene inspection (rtlab.viz): kd-tree cells that partition the root box, drawn as one line
 PolyData; the leaves a primary ray visits, checked against the tree and the hit; a pixel's ray tree
 against the renderer's own hit buffer and the float64 reference; a headless screenshot that is not
 blank; a clear error where no OpenGL works."""
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.inspect import (InspectError, boxes_polydata, build_view, clip_segment, ensure_headless_gl, kd_cells,
+from rtlab.viz import (InspectError, boxes_polydata, build_view, clip_segment, ensure_headless_gl, kd_cells,
                            visited_leaves)
 
 pv = pytest.importorskip("pyvista")
@@ -21,7 +21,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def tree(scene):
-    from rtlab.device_scene import scene_kdtree
+    from rtlab.device.scene import scene_kdtree
     return scene_kdtree(scene)
 
 
@@ -68,7 +68,7 @@ def view(scene, backend):
 
 def test_primary_ray_matches_render_hit_buffer_and_reference(view, scene, backend):
     from rtlab.reference import reference_trace
-    from rtlab.tracing import camera_rays
+    from rtlab.scene.model import camera_rays
     x, y = view.pixel
     prim = view.rays[0]
     assert prim.kind == "primary" and prim.hit
@@ -140,7 +140,7 @@ def test_cli_inspect_writes_screenshot(tmp_path):
 
 
 def test_no_opengl_is_a_clear_error(monkeypatch):
-    import rtlab.inspect as ins
+    import rtlab.viz as ins
     monkeypatch.setattr(ins, "_headless", None)
     monkeypatch.setattr(ins, "HEADLESS_WINDOWS", ("vtkNoSuchRenderWindow",))
     monkeypatch.delenv("RTLAB_VTK_WINDOW", raising=False)

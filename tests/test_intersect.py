@@ -10,10 +10,10 @@ import rtlab
 from rtlab.accel.tri_data import (PLUCKER_ROWS, WALD_ROWS, plucker_tri_data, tri_bytes_read, tri_data_bytes,
                                   wald_tri_data)
 from rtlab.benches.intersect import check_loop, intersect_loop, nvcc_registers
-from rtlab.check import check_render
-from rtlab.kernels import INTERSECTIONS, Variant
+from rtlab.reference.check import check_render
+from rtlab.device.kernels import INTERSECTIONS, Variant
 from rtlab.reference import compare_hits
-from rtlab.rendering import render
+from rtlab.device.rendering import render
 from rtlab.scene.model import Camera
 
 from .conftest import require_scene_file
@@ -134,7 +134,7 @@ def test_unhittable_triangles_stored_as_nan():
 
 
 def test_bytes_per_triangle_and_registration():
-    from rtlab.device_scene import TRI_DATA_BUILDERS
+    from rtlab.device.scene import TRI_DATA_BUILDERS
     from rtlab.errors import VariantError
     assert {t: tri_data_bytes(t) for t in ISECTS} == {"moller": 0, "wald": 48, "plucker": 96, "watertight": 0}
     assert {t: tri_bytes_read(t) for t in ISECTS} == {"moller": 48, "wald": 48, "plucker": 96, "watertight": 48}

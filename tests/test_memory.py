@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.check import check_render
+from rtlab.reference.check import check_render
 from rtlab.errors import VariantError
-from rtlab.kernels import (MEMORY_STEP, SceneFeatures, TRACE_THREADS, Variant, build_defines, build_options,
+from rtlab.device.kernels import (MEMORY_STEP, SceneFeatures, TRACE_THREADS, Variant, build_defines, build_options,
                            kernel_source, load_program, primary_step)
-from rtlab.nvcc import nvcc_available, nvcc_resources
-from rtlab.rendering import render
-from rtlab.tracing import device_scene
+from rtlab.backends.nvcc import nvcc_available, nvcc_resources
+from rtlab.device.rendering import render
+from rtlab.device.scene import device_scene
 
 from .conftest import require_scene_file
 
@@ -99,7 +99,7 @@ def test_texture_round_trip_reads_back_exactly(backend):
         _extremes_f4(rng, 3 * 11),                                            # normals
         rng.integers(0, 64, 11, dtype=np.int32),                              # tri_materials
     ]
-    from rtlab.device_scene import SCENE_ELEMENTS
+    from rtlab.device.scene import SCENE_ELEMENTS
     buffers = [backend.to_device(a) for a in arrays]
     textures = [backend.texture(b, dt, ch, len(a)) for b, a, (dt, ch) in zip(buffers, arrays, SCENE_ELEMENTS)]
     program = backend.compile(kernel_source(MEMORY_STEP, backend.language),
@@ -260,7 +260,7 @@ int main(void) {
 
 
 def test_trace_threads_matches_tracing():
-    from rtlab.tracing import TRACE_BLOCK
+    from rtlab.device.tracing import TRACE_BLOCK
     assert TRACE_THREADS == TRACE_BLOCK
 
 

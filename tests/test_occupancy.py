@@ -1,5 +1,5 @@
-from rtlab.nvcc import parse_ptxas
-from rtlab.occupancy import SM90, cuda_occupancy
+from rtlab.backends.nvcc import parse_ptxas
+from rtlab.backends.occupancy import SM90, cuda_occupancy
 
 
 def test_occupancy_known_points():

@@ -110,7 +110,7 @@ def installed(wheel, tmp_path_factory) -> tuple[Path, Path]:
 
 def test_installed_copy_finds_its_data(installed):
     site, elsewhere = installed
-    code = ("import rtlab, rtlab.paths as p, rtlab.kernels as k; "
+    code = ("import rtlab, rtlab.paths as p, rtlab.device.kernels as k; "
             "print(rtlab.__file__); print(p.IN_CHECKOUT); print(p.DATA_ROOT); print(','.join(k.lab_steps()))")
     proc = _run_installed(site, elsewhere, "-c", code)
     assert proc.returncode == 0, proc.stderr

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.check import check_render
-from rtlab.kernels import Variant
+from rtlab.reference.check import check_render
+from rtlab.device.kernels import Variant
 from rtlab.reference import compare_hits, reference_trace
-from rtlab.rendering import render
-from rtlab.tracing import camera_rays, trace
+from rtlab.device.rendering import render
+from rtlab.device.tracing import trace
+from rtlab.scene.model import camera_rays
 
 from .conftest import require_scene_file
 

@@ -1,5 +1,5 @@
 """The stiff/extreme-case suite (issue 4, rtlab.robustness) at its small "test" size: every
-triangle test x every traversal in rtlab.kernels.TRAVERSALS on every family, against the float64
+triangle test x every traversal in rtlab.device.kernels.TRAVERSALS on every family, against the float64
 reference. The watertight test with the conservative traversal must reach the issue's goals (0
 where the goal is 0); the other tests' leak and error rates are bounded at about twice what was
 measured on PoCL, so that a regression fails while the lesson (they leak) stays visible.
@@ -123,7 +123,7 @@ def test_every_family_has_cases_the_reference_agrees_with():
                 assert np.all(ref.tri >= 0), case.label
     sphere = family_cases(1, "test")[0]
     assert np.abs(sphere.scene.vertices).max() > 1e5
-    from rtlab.device_scene import near_origin
+    from rtlab.device.scene import near_origin
     assert all(near_origin(c.scene) for c in family_cases(10, "test")), "family 10 must take the fused box test"
     glass = [c for c in family_cases(11, "test") if c.label.startswith("glass")]
     assert np.abs(glass[-1].scene.vertices).max(axis=1).min() > 0.9e5

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from rtlab.errors import RtlabError
-from rtlab.kernels import SceneFeatures, Variant, build_defines, kernel_source
+from rtlab.device.kernels import SceneFeatures, Variant, build_defines, kernel_source
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import apply_materials, glass_scene, mtl_materials, reachable_bounces, shading_features
 from rtlab.scene.model import Camera, Light, Material, Scene
-from rtlab.tracing import trace
-from rtlab.whitted import (NO_RAY, probe_refraction, probe_secondary_rays, probe_shadow_rays, render_whitted,
+from rtlab.device.tracing import trace
+from rtlab.device.whitted import (NO_RAY, probe_refraction, probe_secondary_rays, probe_shadow_rays, render_whitted,
                            shading_defines)
 
 from .conftest import require_scene_file
@@ -437,7 +437,7 @@ def test_shading_defines_reject_bad_modes(glass):
 def test_specialised_kernels_leave_code_out(step):
     """No lights and no transparency: no shadow traversal and no refraction kernel in the cubin,
     and the primary kernel needs fewer registers."""
-    from rtlab.nvcc import nvcc_available, nvcc_resources
+    from rtlab.backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         pytest.skip("nvcc not on PATH")
     base = SceneFeatures(stack_size=24, n_lights=1, n_materials=5)

@@ -13,17 +13,18 @@ import numpy as np
 import pytest
 
 import rtlab
-import rtlab.tracing as tracing
+from rtlab.device.scene import device_scene
 from rtlab.accel.bvh import MAX_LEAF, build_bvh, decode_leaf
 from rtlab.accel.kdtree import KdBuildParams, build_kdtree
 from rtlab.accel.ropes import build_ropes
-from rtlab.device_scene import DeviceScene, padded_bounds, scene_kdtree
-from rtlab.kernels import SceneFeatures, TRAVERSALS, Variant, build_defines, kernel_source, primary_step
-from rtlab.layout import float4_rows
+from rtlab.device.scene import DeviceScene, padded_bounds, scene_kdtree
+from rtlab.device.kernels import SceneFeatures, TRAVERSALS, Variant, build_defines, kernel_source, primary_step
+from rtlab.device.layout import float4_rows
 from rtlab.reference import compare_hits, reference_trace
-from rtlab.rendering import render
+from rtlab.device.rendering import render
 from rtlab.scene.model import Camera, Material, Scene
-from rtlab.tracing import camera_rays, trace
+from rtlab.device.tracing import trace
+from rtlab.scene.model import camera_rays
 
 from .conftest import require_scene_file
 
@@ -53,7 +54,7 @@ def _scene_from_mesh(name, vertices, faces):
 
 def _use_tree(scene, backend, tree):
     """Trace ``scene`` on ``backend`` with this kd-tree instead of the cached default build."""
-    tracing.device_scene(scene, backend, tree=tree)
+    device_scene(scene, backend, tree=tree)
 
 
 def _random_rays(scene, n, seed):
@@ -172,7 +173,7 @@ def test_rays_in_split_planes(backend, variant):
 @pytest.mark.parametrize("variant", ["stack"] + VARIANTS)
 def test_render_matches_reference(backend, variant):
     """The renderer's kernel (2D blocks: one packet per block for the packet traversal)."""
-    from rtlab.check import check_render
+    from rtlab.reference.check import check_render
     scene = _preset("bunny")
     result = render(scene, backend, Variant(variant, block=(16, 4)), write_hits=True)
     report = check_render(scene, result, scene.camera)
@@ -302,7 +303,7 @@ def test_any_hit_agrees_with_closest_hit(backend, variant, tmp_path):
     closest = trace(scene, case.o, case.d, backend=backend, variant=v, tmax=tmax)
     src = tmp_path / ("any_hit" + backend.extension)
     src.write_text(ANY_HIT_KERNEL)
-    ds = tracing.device_scene(scene, backend)
+    ds = device_scene(scene, backend)
     program = backend.compile(src, build_defines(v, ds.features(v)))
     box = np.zeros((2, 4), np.float32)
     box[:, :3] = padded_bounds(scene.bounds())
@@ -448,12 +449,12 @@ def test_stackless_traversals_refuse_trees_deeper_than_their_tie_bits(backend, v
                     build_defines(Variant(variant), SceneFeatures(stack_size=64)))
 
 
-@pytest.mark.skipif(not __import__("rtlab.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
+@pytest.mark.skipif(not __import__("rtlab.backends.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
 @pytest.mark.parametrize("variant", list(TRAVERSALS))
 def test_traversal_step_compiles_for_sm90(variant):
     """03_traversal.cu with every traversal: compiles with nvcc; registers, stack and shared
     memory reported (the paper's "Reg. usage" and occupancy rows)."""
-    from rtlab.nvcc import nvcc_resources
+    from rtlab.backends.nvcc import nvcc_resources
     defines = build_defines(Variant(variant), SceneFeatures(stack_size=30, n_lights=2, n_materials=8))
     report = nvcc_resources(kernel_source("03_traversal", "cuda"), defines)
     assert set(report) == {"trace_rays", "render_primary"}
@@ -468,8 +469,8 @@ def test_fused_box_test_only_for_scenes_near_the_origin():
     """The BVH's fused slab form (RT_BVH_BOX_FMA) pads by the rounding of the origin's coordinates,
     which loosens its culling far from the origin: the loader takes it only where those stay within
     a few extents of the scene."""
-    from rtlab.device_scene import near_origin, scene_features
-    from rtlab.kernels import build_defines
+    from rtlab.device.scene import near_origin, scene_features
+    from rtlab.device.kernels import build_defines
     near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     far = _scene_from_mesh("far", [[1e5, 0, 0], [1e5 + 1, 0, 0], [1e5, 1, 0]], [[0, 1, 2]])
     assert near_origin(near) and not near_origin(far)
@@ -553,7 +554,7 @@ def test_fused_box_test_keeps_rays_in_box_planes(backend, lo):
     """A grid of unit cubes near the origin (the BVH takes its fused box test, RT_BVH_BOX_FMA):
     axis-aligned rays lying in the grid's planes, the outer ones included, with +0 and -0 in their
     zero components, hit exactly as the exact box test and the float64 reference say."""
-    from rtlab.device_scene import near_origin
+    from rtlab.device.scene import near_origin
     scene = _cube_grid(4, lo)
     assert near_origin(scene)
     planes = np.arange(lo, lo + 5, dtype=np.float32)
@@ -612,13 +613,13 @@ def test_edited_scene_is_uploaded_again(backend):
     hits = render(scene, backend, size=24, write_hits=True).hits
     assert np.array_equal(hits.tri, fewer.tri)
     twin = dataclasses.replace(scene, vertices=scene.vertices.copy(), faces=scene.faces.copy())
-    assert tracing.device_scene(twin, backend) is tracing.device_scene(scene, backend)
+    assert device_scene(twin, backend) is device_scene(scene, backend)
 
 
 def test_reassigned_materials_are_checked_before_launch(backend):
     """Material ids beyond the materials list crashed the renderers; now a SceneError names the face."""
     from rtlab.errors import SceneError
-    from rtlab.whitted import render_whitted
+    from rtlab.device.whitted import render_whitted
     scene = rtlab.load_scene("default", size=16)
     trace(scene, *camera_rays(scene.camera), backend=backend)       # uploaded with valid ids
     scene.materials = scene.materials[:2]

@@ -89,7 +89,7 @@ RT_FN void clip_slab_fused(float lo, float hi, float inv, float o_near, float o_
  * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA (and not RT_CONSERVATIVE) the slabs
  * take the fused form above, else the exact (b - o) * inv_d of clip_entering_ray_box. */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
-#define RT_BVH_BOX_FMA 0           /* origin (rtlab.device_scene.near_origin), where it costs no leaks */
+#define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.scene.near_origin), where it costs no leaks */
 #endif
 RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *fused, float4 lo, float4 hi, float t_hit, float *t_enter)
 {

@@ -40,7 +40,7 @@
 #include "rt_memory.h"
 
 #define PBVH_LEAF_BITS 4           /* at most 15 triangles a leaf (sync with rtlab/accel/bvh_packet.py) */
-#ifndef RT_PACKET_WIDTH            /* children a node; the loader sets it (rtlab.kernels.PACKET_WIDTH) */
+#ifndef RT_PACKET_WIDTH            /* children a node; the loader sets it (rtlab.device.kernels.PACKET_WIDTH) */
 #define RT_PACKET_WIDTH 4
 #endif
 #define PBVH_NODE_ROWS (2 * RT_PACKET_WIDTH)

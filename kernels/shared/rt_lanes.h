@@ -22,7 +22,7 @@
 #define RT_LANES_H
 #include "rt_port.h"
 
-#ifndef RT_LANES                   /* rays in a packet; the loader sets it (rtlab.kernels.PACKET_LANES) */
+#ifndef RT_LANES                   /* rays in a packet; the loader sets it (rtlab.device.kernels.PACKET_LANES) */
 #define RT_LANES 8
 #endif
 #if RT_LANES != 4 && RT_LANES != 8 && RT_LANES != 16

@@ -29,7 +29,7 @@
 #define RT_TRAVERSE_RAY traverse_bvh_packet_ray
 #elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #ifndef RT_PACKET_KERNELS
-#error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.kernels.primary_step)"
+#error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.device.kernels.primary_step)"
 #endif
 #include "rt_packet.h"
 /* 03_traversal's packet kernels call traverse_kd_packet; the single-ray names stay defined, unused */

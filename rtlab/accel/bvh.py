@@ -14,7 +14,7 @@ Device layout (sync with rt_bvh.h), node_data float4, 4 per node = 64 B:
   [4 i + 1] = (c1.lo.x, c1.hi.x, c1.lo.y, c1.hi.y)
   [4 i + 2] = (c0.lo.z, c0.hi.z, c1.lo.z, c1.hi.z)
   [4 i + 3] = (ref c0, ref c1, 0, 0) as int32 bits
-ref >= 0: inner node index; a leaf is ~((first << 4) | count) over ``objects[first:first + count]``.
+ref >= 0: inner node index; a leaf is ~((first << BVH_LEAF_BITS) | count) over ``objects[first:first + count]``.
 The root (node 0) is always inner: a one-leaf tree gets a second, identical leaf.
 """
 from __future__ import annotations
@@ -29,12 +29,13 @@ import numpy as np
 from numba import njit, prange
 
 from .. import paths
+from ..device.constants import kernel_constant
 from ..errors import RtlabError, SceneError
 
 FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same inputs changes
-LEAF_BITS = 4
+LEAF_BITS = int(kernel_constant("BVH_LEAF_BITS"))
 MAX_LEAF = (1 << LEAF_BITS) - 1
-NODE_FLOAT4S = 4
+NODE_FLOAT4S = int(kernel_constant("BVH_NODE_STRIDE"))
 
 
 @dataclass(frozen=True)
@@ -326,19 +327,3 @@ def load_or_build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildP
     except OSError as exc:                # read-only or full cache: the BVH is still good
         warnings.warn(f"BVH cache not written to {directory}: {exc}", stacklevel=2)
     return bvh, False
-
-
-def bvh_accel(scene, tree=None):
-    """ACCEL_BUILDERS["bvh"]: the scene's BVH in the device layout (the kd-tree is not used)."""
-    from ..device_scene import AccelArrays
-    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces)
-    nodes = np.zeros((1, 2), np.int32)     # unused by the BVH traversal
-    return AccelArrays(nodes, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
-
-
-def _register():
-    from .. import device_scene
-    device_scene.ACCEL_BUILDERS["bvh"] = bvh_accel
-
-
-_register()

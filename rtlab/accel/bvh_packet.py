@@ -9,7 +9,7 @@ rows (lo, hi) beside its ref, and each leaf's triangles follow the nodes as (v0,
 e2 = v2 - v0) rows in leaf order: a leaf reads its triangles straight, without the object list's
 indirection, and Möller-Trumbore needs no subtraction for the edges.
 
-node_data, float4 rows (sync with rt_bvh_packet.h; W = width, PACKET_WIDTH in rtlab.kernels):
+node_data, float4 rows (sync with rt_bvh_packet.h; W = width, RT_PACKET_WIDTH there):
   node i, rows 2 W i + 2 c, 2 W i + 2 c + 1 for child c < W: (lo.xyz, ref), (hi.xyz, 0)
   triangle rows from 2 W M: (v0.xyz, triangle id), (e1.xyz, 0), (e2.xyz, 0) for each leaf's triangles
 A ref >= 0 is an inner node; a leaf is ~((row << 4) | count), its triangles from row ``row``. A node
@@ -20,15 +20,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..device.constants import kernel_constant
 from ..errors import SceneError
-from .bvh import LEAF_BITS, Bvh, BvhBuildParams, load_or_build_bvh
+from .bvh import Bvh, BvhBuildParams
 
-TRI_ROWS = 3
+LEAF_BITS = int(kernel_constant("PBVH_LEAF_BITS"))
+TRI_ROWS = int(kernel_constant("PBVH_TRI_ROWS"))
 # SAH costs for packets: a binary node (two box tests on every lane) costs two triangle tests, and
 # leaves may hold up to 15 triangles (2-8 % more Mrays per CPU-second than the GPU BVH's 1.0 and 8
 # on the issue 15 views, most at 256²)
 PACKET_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0)
-EMPTY = -1                                  # ~0: a leaf of no triangles
+EMPTY = int(kernel_constant("PBVH_EMPTY"))  # ~0: a leaf of no triangles
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1      # largest row a leaf ref addresses
 
 
@@ -123,21 +125,3 @@ def packet_node_data(bvh: Bvh, vertices: np.ndarray, faces: np.ndarray, width: i
     tris[:, 2, :3] = v2 - v0
     # a node pushes all but one of the children it enters, at most width - 1, on each level
     return out, (width - 1) * depth + 1
-
-
-def bvh_packet_accel(scene, tree=None):
-    """ACCEL_BUILDERS["bvh-packet"]: the scene's BVH in the packet layout (the kd-tree is not used)."""
-    from ..device_scene import AccelArrays
-    from ..kernels import PACKET_WIDTH
-    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
-    rows, stack = packet_node_data(bvh, scene.vertices, scene.faces, PACKET_WIDTH)
-    nodes = np.zeros((1, 2), np.int32)                     # unused by the BVH traversals
-    return AccelArrays(nodes, rows, bvh.objects, bvh.bounds, stack)
-
-
-def _register():
-    from .. import device_scene
-    device_scene.ACCEL_BUILDERS["bvh-packet"] = bvh_packet_accel
-
-
-_register()

@@ -72,8 +72,9 @@ import numba
 import numpy as np
 from numba import njit
 
+from ..device.constants import kernel_constant
 
-LEAF_TAG = 3
+LEAF_TAG = int(kernel_constant("KD_LEAF"))   # axis field 3 marks a leaf (rt_kdtree.h)
 # Told to build_kdtree's progress when numba compiles the builder (a fresh install, once)
 COMPILING_MESSAGE = "compiling the kd-tree builder (first run only: numba caches it)"
 

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..device.constants import kernel_constant
 from ..errors import RtlabError
 from .kdtree import LEAF_TAG, KdTree
 
-RECORD_FLOAT4S = 4
+RECORD_FLOAT4S = int(kernel_constant("KD_ROPES_LEAF_STRIDE"))
 NO_ROPE = -1
 
 
@@ -111,19 +112,3 @@ def build_ropes(tree: KdTree) -> KdRopes:
     rope_nodes = nodes.copy()
     rope_nodes[leaf_nodes, 1] = np.arange(n_leaves, dtype=np.int32)
     return KdRopes(rope_nodes, records.reshape(-1, 4), leaf_nodes, boxes, ropes)
-
-
-def ropes_accel(scene, tree: KdTree):
-    """ACCEL_BUILDERS["ropes"]: the rope tree on the scene's kd-tree."""
-    from ..device_scene import AccelArrays
-    r = build_ropes(tree)
-    records = r.records if len(r.records) else np.zeros((RECORD_FLOAT4S, 4), np.float32)
-    return AccelArrays(r.nodes, records, tree.objects, tree.bounds, tree.depth + 1)
-
-
-def _register():
-    from .. import device_scene
-    device_scene.ACCEL_BUILDERS["ropes"] = ropes_accel
-
-
-_register()

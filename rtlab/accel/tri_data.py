@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..device.constants import kernel_constant
 from ..errors import VariantError
 
-WALD_ROWS = 3
-PLUCKER_ROWS = 6
+WALD_ROWS = int(kernel_constant("RT_WALD_ROWS"))
+PLUCKER_ROWS = int(kernel_constant("RT_PLUCKER_ROWS"))
 _F4_BYTES = 16
 
 # Bytes each test reads per triangle, and what it adds to the scene's memory. Möller–Trumbore and
@@ -121,18 +122,3 @@ def plucker_tri_data(vertices, faces) -> np.ndarray:
         data[:, 0, 3], data[:, 1, 3], data[:, 2, 3] = normal[:, 0], normal[:, 1], normal[:, 2]
         data[:, 3, 3] = np.einsum("ij,ij->i", normal, a)
     return _to_f32_rows(data, usable)
-
-
-def _scene_builder(fn):
-    return lambda scene: fn(scene.vertices, scene.faces)
-
-
-def register() -> None:
-    """Register the builders with the device-scene upload (``TRI_DATA_BUILDERS``); runs on import,
-    and rtlab.device_scene imports this module."""
-    from ..device_scene import TRI_DATA_BUILDERS
-    TRI_DATA_BUILDERS["wald"] = _scene_builder(wald_tri_data)
-    TRI_DATA_BUILDERS["plucker"] = _scene_builder(plucker_tri_data)
-
-
-register()

@@ -37,6 +37,15 @@ def get_backend(name: str | None = None, device: str | None = None) -> Backend:
     return backend
 
 
+def backend_spec(backend: Backend) -> tuple[str, str | None]:
+    """(name, device) that :func:`get_backend` turns back into this backend in another process (a
+    child that traces a case which may crash)."""
+    for (name, device), cached in _cache.items():
+        if cached is backend and name != "auto":
+            return name, device
+    return backend.name, backend.device_name
+
+
 def backend_status() -> list[dict]:
     """One row per backend: available or why not, and its devices (for ``rtlab info``)."""
     rows = []
@@ -60,4 +69,4 @@ def backend_status() -> list[dict]:
     return rows
 
 
-__all__ = ["Backend", "Program", "KernelResources", "get_backend", "backend_status", "BACKEND_NAMES"]
+__all__ = ["Backend", "Program", "KernelResources", "get_backend", "backend_spec", "backend_status", "BACKEND_NAMES"]

@@ -11,6 +11,7 @@ OpenCL kernels take ``__constant`` pointer arguments, last, in the order the lau
 from __future__ import annotations
 
 import math
+import re
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -96,7 +97,7 @@ class Backend(ABC):
 
     @abstractmethod
     def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> Program:
-        """Build ``path`` with ``-D`` defines plus compiler ``options`` (rtlab.kernels.build_options:
+        """Build ``path`` with ``-D`` defines plus compiler ``options`` (rtlab.device.kernels.build_options:
         register caps); cached per (path, defines, options)."""
 
     def texture(self, buffer, dtype, channels: int, count: int) -> Texture:
@@ -137,3 +138,12 @@ def read_source(path) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+def format_build_error(path, defines: dict, log: str) -> str:
+    """The compiler's error lines first (file:line: error ...), then the defines that were set."""
+    lines = [ln for ln in log.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if re.search(r"error", ln, re.I)]
+    shown = (errors or lines)[:12]
+    defs = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()))
+    return f"kernel {path} failed to compile (defines: {defs}):\n" + "\n".join("  " + ln for ln in shown)

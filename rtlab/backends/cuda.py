@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BackendError, KernelBuildError
-from ..occupancy import SmLimits, cuda_occupancy
-from .base import Backend, KernelResources, Program, Texture, read_source, round_up
+from .occupancy import SmLimits, cuda_occupancy
+from .base import Backend, KernelResources, Program, Texture, format_build_error, read_source, round_up
 
 
 def _pycuda():
@@ -200,7 +200,7 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        from ..kernels import CUDA_PRECISION_OPTIONS, include_dirs
+        from ..device.kernels import CUDA_PRECISION_OPTIONS, include_dirs
         options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), options)
         if key in self._programs:
@@ -212,7 +212,6 @@ class CudaBackend(Backend):
             module = SourceModule(source, options=flags, include_dirs=[*(str(d) for d in include_dirs(path)), str(Path(path).parent)],
                                   no_extern_c=True, arch=self.arch)
         except drv.CompileError as e:
-            from .opencl import format_build_error
             log = e.stderr or str(e)
             if isinstance(log, bytes):
                 log = log.decode(errors="replace")

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BackendError, KernelBuildError
-from .base import Backend, KernelResources, Program, Texture, read_source, round_up
+from .base import Backend, KernelResources, Program, Texture, format_build_error, read_source, round_up
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
              "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
@@ -128,7 +128,7 @@ class OpenCLProgram(Program):
         if m:
             res.registers = int(m.group(1))
         if self.backend.is_nvidia():
-            from ..nvcc import parse_ptxas
+            from .nvcc import parse_ptxas
             threads = int(np.prod(block)) if block else 128
             ptxas = parse_ptxas(self.build_log, threads).get(kernel)
             if ptxas is not None:
@@ -136,7 +136,7 @@ class OpenCLProgram(Program):
                 res.spill_bytes = ptxas.spill_bytes
             limits = self.backend.sm_limits()
             if res.registers and block and limits is not None:
-                from ..occupancy import cuda_occupancy
+                from .occupancy import cuda_occupancy
                 res.occupancy = cuda_occupancy(res.registers, threads, res.shared_bytes or 0, limits)
         return res
 
@@ -170,11 +170,11 @@ class OpenCLBackend(Backend):
             return None
         if cc != (9, 0):
             return None
-        from ..occupancy import SM90
+        from .occupancy import SM90
         return SM90
 
     def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> OpenCLProgram:
-        from ..kernels import include_dirs
+        from ..device.kernels import include_dirs
         cl = _cl()
         # the include folders are part of the key: the harness kernels compile against any tree
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
@@ -255,12 +255,3 @@ class OpenCLBackend(Backend):
 
     def synchronize(self):
         self.queue.finish()
-
-
-def format_build_error(path, defines: dict, log: str) -> str:
-    """The compiler's error lines first (file:line: error ...), then the defines that were set."""
-    lines = [ln for ln in log.splitlines() if ln.strip()]
-    errors = [ln for ln in lines if re.search(r"error", ln, re.I)]
-    shown = (errors or lines)[:12]
-    defs = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()))
-    return f"kernel {path} failed to compile (defines: {defs}):\n" + "\n".join("  " + ln for ln in shown)

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RtlabError
-from ..kernels import Variant
+from ..device.kernels import Variant
 
 EMBREE_HINT = "Embree is not installed: `pip install 'rtlab[bench]'` (or `pip install embreex`)"
 DEFAULT_VIEWS = "bunny/fill,sponza/inside,default"
@@ -139,7 +139,7 @@ def bench_cpu(batch, backend, variant: Variant | None = None, rounds: int = 7, e
               progress=None) -> CpuRow:
     """Trace ``batch`` (a rtlab.benches.rays.RayBatch) with rtlab on ``backend`` and with Embree,
     alternately, ``rounds`` times after one untimed round each; medians, ratio and both errors."""
-    from ..tracing import trace
+    from ..device.tracing import trace
     if rounds < 1:
         raise RtlabError(f"rounds must be at least 1, got {rounds}")
     variant = variant or Variant(traversal=CPU_TRAVERSAL)

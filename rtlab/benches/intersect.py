@@ -6,7 +6,7 @@ structure. Lab step 02 (kernels/cuda/02_intersect.cu, kernels/opencl/02_intersec
 kernel; RT_ISECT picks the test. Beside each time: the compiler's registers (the paper's
 "Reg. usage" row; offline from nvcc for CUDA), the bytes each test reads per triangle, and the
 error against the float64 reference over the same 1000 triangles. The in-render effect is the full
-renderer (kd-tree, simple shading) with each test: Mrays/s and its error, via rtlab.bench.bench_render.
+renderer (kd-tree, simple shading) with each test: Mrays/s and its error, via rtlab.benches.primary.bench_render.
 """
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
-from ..layout import HIT_DTYPE
+from ..device.kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
+from ..device.layout import HIT_DTYPE
 from ..scene.model import Camera, Scene
 
 INTERSECT_STEP = "02_intersect"
@@ -55,7 +55,8 @@ def intersect_loop(scene: Scene, backend, isect: str = "moller", n_tris: int = T
                    camera: Camera | None = None, repeats: int = 1, warmup: int = 0, **defines) -> LoopResult:
     """Run lab step 02: each pixel's camera ray against the first ``n_tris`` triangles with test
     ``isect``; the median of ``repeats`` timed launches after ``warmup`` untimed ones."""
-    from ..tracing import device_scene, unpack_hits
+    from ..device.tracing import unpack_hits
+    from ..device.scene import device_scene
     camera = camera or scene.camera
     n_tris = int(min(n_tris, scene.n_triangles))
     variant = Variant(intersection=isect)
@@ -79,7 +80,7 @@ def intersect_loop(scene: Scene, backend, isect: str = "moller", n_tris: int = T
 def check_loop(scene: Scene, result: LoopResult):
     """The loop's hits against the float64 reference over the same triangles (HitComparison)."""
     from ..reference import compare_hits, reference_trace
-    from ..tracing import camera_rays
+    from ..scene.model import camera_rays
     o, d = camera_rays(result.camera)
     faces = scene.faces[:result.n_tris]
     ref = reference_trace(scene.vertices, faces, o, d)
@@ -89,7 +90,7 @@ def check_loop(scene: Scene, result: LoopResult):
 def nvcc_registers(isect: str, features: SceneFeatures | None = None) -> dict | None:
     """Offline CUDA report of the Table 3 kernel for ``isect`` (registers, stack, spills), or None
     without nvcc."""
-    from ..nvcc import nvcc_available, nvcc_resources
+    from ..backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         return None
     defines = build_defines(Variant(intersection=isect), features or SceneFeatures())
@@ -113,7 +114,7 @@ class Table3Row:
     bytes_read: int
     bytes_precomputed: int
     error: dict
-    render: object | None = None       # rtlab.bench.BenchRow with this test in the renderer
+    render: object | None = None       # rtlab.benches.primary.BenchRow with this test in the renderer
 
     def error_text(self) -> str:
         e = self.error
@@ -124,7 +125,7 @@ def bench_table3(scene: Scene, backend, isects, size: int, n_tris: int = TABLE3_
                  render_size: int | None = None, render_repeats: int = 5, check: bool = True) -> list[Table3Row]:
     """Table 3 rows for one scene on one backend; with ``render_size`` also the in-render effect."""
     from ..accel.tri_data import tri_bytes_read, tri_data_bytes
-    from ..bench import bench_render
+    from .primary import bench_render
     rows = []
     camera = scene.camera.with_size(size)
     render_scene = None

@@ -24,9 +24,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..kernels import Variant, build_defines, build_options, kernel_source, load_program, primary_step
-from ..layout import HIT_DTYPE
-from ..occupancy import SM90, cuda_occupancy
+from ..device.kernels import Variant, build_defines, build_options, kernel_source, load_program, primary_step
+from ..device.layout import HIT_DTYPE
+from ..backends.occupancy import SM90, cuda_occupancy
 from ..scene.model import Scene
 
 FIG4_BLOCKS = ((1, 32), (2, 32), (4, 32), (8, 32), (16, 32), (32, 32), (8, 8), (16, 16), (14, 32), (22, 20),
@@ -78,7 +78,7 @@ def time_render(scene: Scene, backend, variant: Variant, repeats: int = 10, warm
                 shared_bytes: int = 0, write_hits: bool = True) -> _Timed:
     """Device times of the render kernel (after ``warmup`` launches) and one launch's pixels and
     hit records; ``shared_bytes`` of dynamic shared memory a block (CUDA)."""
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     ds = device_scene(scene, backend)
     program = load_program(backend, primary_step(variant), variant, ds.features(variant),
                            RT_WRITE_HITS=int(write_hits))
@@ -105,7 +105,7 @@ def _diff(t: _Timed, base: _Timed) -> dict:
 
 
 def _nvcc(variant: Variant, features, shared_pad: int = 0) -> dict | None:
-    from ..nvcc import nvcc_available, nvcc_resources
+    from ..backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         return None
     threads = variant.block[0] * variant.block[1]
@@ -147,8 +147,8 @@ def _base(scene, backend, variant, repeats, check):
     timed = time_render(scene, backend, variant, repeats)
     error = {}
     if check:
-        from ..check import check_render
-        from ..rendering import render
+        from ..reference.check import check_render
+        from ..device.rendering import render
         error = check_render(scene, render(scene, backend, variant, write_hits=True), scene.camera).as_dict()
     return timed, error
 
@@ -167,7 +167,7 @@ def _fits(backend, variant) -> str:
 def block_sweep(scene: Scene, backend, blocks=FIG4_BLOCKS, orders=("rows", "morton"), repeats: int = 10,
                 check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 4 and ray order: every block shape (and order), the same rays, the same hits."""
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     base = base or Variant()
     features = device_scene(scene, backend).features(base)
     base_timed, error = _base(scene, backend, base, repeats, check)
@@ -196,8 +196,8 @@ def block_sweep(scene: Scene, backend, blocks=FIG4_BLOCKS, orders=("rows", "mort
 def register_sweep(scene: Scene, backend, traversals=FIG5_TRAVERSALS, caps=FIG5_CAPS, repeats: int = 10,
                    check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 5 by register caps: each traversal at each cap (one point a traversal on PoCL)."""
-    from ..tracing import device_scene
-    from ..kernels import build_options as options
+    from ..device.scene import device_scene
+    from ..device.kernels import build_options as options
     base = base or Variant()
     rows = []
     for name in traversals:
@@ -227,7 +227,7 @@ def occupancy_sweep(scene: Scene, backend, traversals=("stack",), blocks_per_sm=
     the kernel, its registers and its rays stay the same."""
     if backend.name != "cuda":
         return []
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     base = base or Variant()
     limits = backend.limits
     rows = []

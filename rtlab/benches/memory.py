@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bench import BenchRow, bench_render
-from ..kernels import Variant, build_defines, build_options, kernel_source, primary_step
+from .primary import BenchRow, bench_render
+from ..device.kernels import Variant, build_defines, build_options, kernel_source, primary_step
 from ..scene.model import Scene
 
 # name -> (variant fields beyond the base, what it moves)
@@ -62,7 +62,7 @@ def placement_variant(name: str, base: Variant | None = None) -> Variant:
 
 def nvcc_render_report(variant: Variant, features) -> dict | None:
     """Offline nvcc report (sm_90) of the render kernel this variant runs, or None without nvcc."""
-    from ..nvcc import nvcc_available, nvcc_resources
+    from ..backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         return None
     threads = variant.block[0] * variant.block[1]
@@ -75,7 +75,7 @@ def nvcc_render_report(variant: Variant, features) -> dict | None:
 
 
 def _hits(scene, backend, variant):
-    from ..rendering import render
+    from ..device.rendering import render
     return render(scene, backend, variant, write_hits=True)
 
 
@@ -89,7 +89,7 @@ def hit_difference(result, base) -> dict:
 def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, check: bool = True,
                  view: str = "preset", base: Variant | None = None, progress=None) -> list[MemoryRow]:
     """Every placement on ``scene``'s camera on ``backend`` (CUDA-only ones skipped elsewhere)."""
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     names = [n for n in (placements or PLACEMENTS) if backend.language == "cuda" or n not in CUDA_ONLY]
     base = base or Variant()
     reference = _hits(scene, backend, base)
@@ -108,8 +108,8 @@ def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, chec
         elif check and diff["tri"] == 0 and diff["t_bits"] == 0 and global_error:
             row.error, error_from = dict(global_error), "global"
         elif check:
-            from ..check import check_render
-            from ..rendering import render
+            from ..reference.check import check_render
+            from ..device.rendering import render
             row.error = check_render(scene, render(scene, backend, variant, write_hits=True), scene.camera).as_dict()
         features = device_scene(scene, backend).features(variant)
         rows.append(MemoryRow(name, PLACEMENTS[name][1], row, nvcc_render_report(variant, features), diff, error_from))
@@ -119,8 +119,8 @@ def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, chec
 def compiler_report(features=None, block: tuple[int, int] = (32, 4), caps=REPORT_CAPS) -> list[dict]:
     """nvcc's sm_90 report of lab step 01's render kernel for each ray placement and register cap:
     registers, stack (local) bytes, spill bytes, shared bytes, occupancy. Empty without nvcc."""
-    from ..kernels import SceneFeatures
-    from ..nvcc import nvcc_available
+    from ..device.kernels import SceneFeatures
+    from ..backends.nvcc import nvcc_available
     if not nvcc_available():
         return []
     features = features or SceneFeatures(stack_size=32)
@@ -129,7 +129,7 @@ def compiler_report(features=None, block: tuple[int, int] = (32, 4), caps=REPORT
         for cap in caps:
             v = Variant(ray_memory=ray, max_registers=cap, block=block)
             # every ray placement through the same kernel file, so only the placement differs
-            from ..nvcc import nvcc_resources
+            from ..backends.nvcc import nvcc_resources
             report = nvcc_resources(kernel_source("01_memory", "cuda"), build_defines(v, features),
                                     block_threads=block[0] * block[1], extra_options=build_options(v, "cuda"))
             r = report["render_primary"]
@@ -145,7 +145,7 @@ def ptx_memory_ops(path, defines: dict, kernel: str = "render_primary", arch: st
     """Local- and shared-memory loads/stores in the kernel's PTX (before register allocation, so
     spills are not among them): where the ray's components are read from."""
     import re
-    from ..nvcc import nvcc_ptx
+    from ..backends.nvcc import nvcc_ptx
     text = nvcc_ptx(path, defines, arch)
     m = re.search(rf"\.entry {kernel}\b.*?\n}}", text, re.S)
     body = m.group(0) if m else ""

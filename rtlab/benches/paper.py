@@ -87,7 +87,7 @@ def _bench_row(section, b, paper=None, unit="fps", speedup=None, registers=None,
 
 def section_table2(ctx) -> SectionResult:
     from ..accel.kdtree import kd_stats
-    from ..device_scene import scene_kdtree
+    from ..device.scene import scene_kdtree
     out = ["| scene | #triangles (paper) | #nodes (paper) | #neleaves (paper) | #links (paper) | size (paper) | "
            "depth | SAH cost | build s |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name in ctx.scenes:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kernels import Variant
+from ..device.kernels import Variant
 from ..scene.model import Scene
 
 RAY_KINDS = ("primary", "diffuse")
@@ -102,7 +102,7 @@ def make_rays(view: str, kind: str, size: int, check_rays: int = CHECK_RAYS, sce
     """The rays of ``view`` (e.g. "sponza/inside") and ``kind`` at size², and reference hits of an
     evenly spread subsample of at most ``check_rays`` of them."""
     from ..reference import reference_trace
-    from ..tracing import camera_rays
+    from ..scene.model import camera_rays
     if kind not in RAY_KINDS:
         raise ValueError(f"unknown ray kind {kind!r}; kinds: {', '.join(RAY_KINDS)}")
     scene = scene if scene is not None else view_scene(view, size)
@@ -154,7 +154,7 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     check the subsample against the float64 reference, and for primary rays time the render kernel
     on the same camera (what trace should match)."""
     from ..reference import compare_hits
-    from ..tracing import trace
+    from ..device.tracing import trace
     # primary rays are an image: traced in tiles of the variant's block (trace's width=)
     width = batch.size if batch.kind == "primary" else None
     result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,
@@ -169,7 +169,7 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
                   (float(min(result.launches_ms)), float(max(result.launches_ms))), error,
                   peer=peer_figures().get((batch.view, batch.kind, batch.size)))
     if render and batch.kind == "primary":
-        from ..rendering import render as render_view
+        from ..device.rendering import render as render_view
         timed = render_view(batch.scene, backend, variant, repeats=repeats, warmup=warmup)
         row.render_mrays = timed.mrays_per_s
     return row

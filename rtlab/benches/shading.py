@@ -12,7 +12,7 @@ have no secondary rays). Bounce rows use the Fig. 6 material overrides ("paper",
 rtlab.scene.materials) with one-pass shadows in every tree node, measured without and with the
 compaction of live rays between levels (beyond the paper), to show whether compaction pays, and
 with the wavefront schedule (beyond the paper: one launch per level over a queue of all its rays,
-rtlab.whitted), whose image may differ from the tree's by one 8-bit step (order of additions).
+rtlab.device.whitted), whose image may differ from the tree's by one 8-bit step (order of additions).
 Specialised-vs-general rows render the scenes' own materials ("file"): with the Fig. 6 overrides
 every scene has lights, mirrors and glass, and the two kernels would be one.
 """
@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kernels import Variant, kernel_source
+from ..device.kernels import Variant, kernel_source
 from ..scene.materials import apply_materials
 from ..scene.model import Scene
-from ..whitted import WhittedResult, render_whitted
+from ..device.whitted import WhittedResult, render_whitted
 
 # Table 5 of the paper: fps at 1024x1024 on a GeForce 8800 GTS
 PAPER_SHADOW_FPS = {"bunny": {"one-pass": 16.6, "two-pass": 18.4},
@@ -54,7 +54,7 @@ def kernel_resources(backend, result: WhittedResult) -> dict[str, dict]:
     threads = int(np.prod(result.variant.block))
     out = {}
     if backend.name != "cuda":
-        from ..nvcc import nvcc_available, nvcc_resources
+        from ..backends.nvcc import nvcc_available, nvcc_resources
         if nvcc_available():
             key = (result.step, tuple(sorted(result.defines.items())), threads)
             if key not in _NVCC_CACHE:
@@ -230,6 +230,6 @@ def table5_markdown(rows: list[ShadingRow], command: str) -> str:
         out.append("")
     out.append("Registers and occupancy per kernel in launch order (shadows: render_shadows, or "
                "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction). "
-               "Wavefront: one launch per level (rtlab.whitted, beyond the paper); ±N: its image's largest "
+               "Wavefront: one launch per level (rtlab.device.whitted, beyond the paper); ±N: its image's largest "
                "8-bit difference from the tree's.")
     return "\n".join(out) + "\n"

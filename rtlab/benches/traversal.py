@@ -1,6 +1,6 @@
 """The paper's Table 4: kd-tree traversal variants (and the BVH of its future work) on the current
 device. Primary rays with simple shading at 1024² (the paper's setting), one renderer launch per
-variant through rtlab.bench.bench_render: median device time, fps, Mrays/s, the error against the
+variant through rtlab.benches.primary.bench_render: median device time, fps, Mrays/s, the error against the
 float64 reference beside each time, and the resources the compiler gave the kernel - on the device
 (Program.resources: CUDA registers and occupancy; NVIDIA OpenCL registers) and offline from nvcc
 (registers, stack, shared memory, occupancy at the launch's block size) - beside the paper's
@@ -12,8 +12,8 @@ import datetime
 import platform
 from dataclasses import dataclass
 
-from ..bench import BenchRow, bench_render
-from ..kernels import Variant, build_defines, kernel_source, primary_step
+from .primary import BenchRow, bench_render
+from ..device.kernels import Variant, build_defines, kernel_source, primary_step
 from ..scene.model import Scene
 
 TABLE4_VARIANTS = ("stack", "packet", "restart", "shortstack", "ropes", "bvh")
@@ -48,7 +48,7 @@ class Table4Row:
 
 def nvcc_report(variant: Variant, features) -> dict | None:
     """Offline CUDA resources of the render kernel for this variant and scene, or None without nvcc."""
-    from ..nvcc import nvcc_available, nvcc_resources
+    from ..backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         return None
     threads = variant.block[0] * variant.block[1]
@@ -63,7 +63,7 @@ def nvcc_report(variant: Variant, features) -> dict | None:
 def bench_table4(scene: Scene, backend, traversals=TABLE4_VARIANTS, repeats: int = 25, check: bool = True,
                  view: str = "preset", base: Variant | None = None, progress=None) -> list[Table4Row]:
     """One Table 4 row group: every traversal on ``scene``'s camera on ``backend``."""
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     base = base or Variant()
     rows = []
     for name in traversals:

@@ -54,7 +54,7 @@ class Kind:
 # helpers
 # --------------------------------------------------------------------------------------------------
 def spec_variant(spec):
-    from ..kernels import Variant
+    from ..device.kernels import Variant
     p = spec.params
     kw = {k: p[k] for k in ("traversal", "intersection", "node_memory", "constants", "ray_memory") if p.get(k)}
     if p.get("block"):
@@ -136,15 +136,15 @@ def _ray_namer(origins, directions):
 def _primary_step(variant) -> str:
     """The kernel pair render() and trace() compile for this variant (packet traversal has its own)."""
     try:
-        from ..kernels import primary_step
+        from ..device.kernels import primary_step
         return primary_step(variant)
     except ImportError:
-        from ..tracing import PRIMARY_STEP
+        from ..device.tracing import PRIMARY_STEP
         return PRIMARY_STEP
 
 
 def _device_scene(scene, backend):
-    from ..tracing import device_scene
+    from ..device.scene import device_scene
     return device_scene(scene, backend)
 
 
@@ -158,7 +158,7 @@ class CompileKind(Kind):
               "defines": {}}
 
     def setup(self, spec, fixture, backend):
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         variant = spec_variant(spec)
         ds = _device_scene(fixture["scene"], backend)
         step = spec.params["kernel"] or fixture["step"]
@@ -171,7 +171,7 @@ class CompileKind(Kind):
 
 
 class CameraRaysKind(Kind):
-    """camera_ray() against the host's float32 camera rays (rtlab.tracing.camera_rays), pixel by pixel,
+    """camera_ray() against the host's float32 camera rays (rtlab.scene.model.camera_rays), pixel by pixel,
     through a harness kernel: catches a wrong camera before any traversal runs."""
     name = "camera_rays"
     tolerance = {"direction_abs": 1e-5, "origin_rel": 1e-6}
@@ -181,8 +181,8 @@ class CameraRaysKind(Kind):
         return backend, backend.compile(path, {}), fixture["scene"], spec.tolerance
 
     def run(self, state):
-        from ..device_scene import frame_constants
-        from ..tracing import camera_rays
+        from ..device.scene import frame_constants
+        from ..scene.model import camera_rays
         backend, program, scene, tol = state
         cam = scene.camera
         w, h = cam.width, cam.height
@@ -280,7 +280,7 @@ class TraceRaysKind(Kind):
         return {"origins": o, "directions": d, "ref": ref}
 
     def setup(self, spec, fixture, backend):
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         variant = spec_variant(spec)
         ds = _device_scene(fixture["scene"], backend)
         load_program(backend, _primary_step(variant), variant, ds.features(variant))
@@ -288,7 +288,7 @@ class TraceRaysKind(Kind):
 
     def run(self, state):
         from ..reference import compare_hits
-        from ..tracing import trace
+        from ..device.tracing import trace
         spec, fx, backend, variant = state
         scene, o, d, ref = fx["scene"], fx["origins"], fx["directions"], fx["ref"]
         p = spec.params
@@ -316,7 +316,7 @@ def make_rays(scene, kind: str, count: int, seed: int):
         d1 = np.zeros((half, 3))
         d1[np.arange(half), axis] = rng.choice([-1.0, 1.0], half)
         # half: rays lying in a split plane of the kd-tree (origin on the plane, no component across it)
-        from ..device_scene import scene_kdtree
+        from ..device.scene import scene_kdtree
         tree = scene_kdtree(scene)
         interior = np.flatnonzero(~tree.is_leaf())
         pick = interior[rng.integers(0, interior.size, count - half)]
@@ -343,7 +343,7 @@ class RenderKind(Kind):
 
     def prepare(self, spec, scene):
         from ..reference.shading import reference_shade, to_rgb8
-        from ..check import reference_camera_hits
+        from ..reference.check import reference_camera_hits
         o, d, ref = reference_camera_hits(scene, scene.camera)
         _require_hits(ref, spec)
         img = to_rgb8(reference_shade(scene, o, d, ref.tri, ref.t, ref.u, ref.v))
@@ -351,14 +351,14 @@ class RenderKind(Kind):
                 "ref_image": img.reshape(scene.camera.height, scene.camera.width, 3)}
 
     def setup(self, spec, fixture, backend):
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         variant = spec_variant(spec)
         ds = _device_scene(fixture["scene"], backend)
         load_program(backend, _primary_step(variant), variant, ds.features(variant), RT_WRITE_HITS=1)
         return spec, fixture, backend, variant
 
     def render(self, state):
-        from ..rendering import render
+        from ..device.rendering import render
         spec, fx, backend, variant = state
         return render(fx["scene"], backend, variant, write_hits=True)
 
@@ -418,7 +418,7 @@ class IntersectLoopKind(Kind):
     def prepare(self, spec, scene):
         from ..errors import RtlabError
         from ..reference import reference_trace
-        from ..tracing import camera_rays
+        from ..scene.model import camera_rays
         o, d = camera_rays(scene.camera)
         n = int(spec.params["n_tris"])
         if spec.params["triangles"] == "visible":
@@ -432,13 +432,13 @@ class IntersectLoopKind(Kind):
         ref = reference_trace(scene.vertices, scene.faces[:n], o, d)
         _require_hits(ref, spec)
         if spec.params["triangles"] == "visible":
-            from ..device_scene import scene_kdtree
+            from ..device.scene import scene_kdtree
             scene_kdtree(scene)    # the test process uploads this scene: build its kd-tree once, here
         return {"scene": scene, "origins": o, "directions": d, "ref": ref}
 
     def setup(self, spec, fixture, backend):
         from ..benches.intersect import INTERSECT_STEP
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         variant = spec_variant(spec)
         ds = _device_scene(fixture["scene"], backend)
         load_program(backend, INTERSECT_STEP, variant, ds.features(variant))
@@ -476,7 +476,7 @@ class IntersectLoopKind(Kind):
 
 
 class WhittedKind(Kind):
-    """Whitted ray tracing (labs 04, 05; rtlab.whitted.render_whitted): shadows one-pass, two-pass
+    """Whitted ray tracing (labs 04, 05; rtlab.device.whitted.render_whitted): shadows one-pass, two-pass
     or none, ``bounces`` levels of the reflection/refraction kernel tree, against the float64
     Whitted reference (rtlab.reference.whitted): the ray tree of every pixel (triangle hit by each
     node) and the colour where the trees agree."""
@@ -493,11 +493,11 @@ class WhittedKind(Kind):
 
     def setup(self, spec, fixture, backend):
         from ..errors import KernelBuildError
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         variant = spec_variant(spec)
         p = spec.params
         try:   # compile here, as render_whitted will, so the test's time limit covers only the run
-            from ..whitted import SHADOWS_STEP, TREE_STEP, shading_defines
+            from ..device.whitted import SHADOWS_STEP, TREE_STEP, shading_defines
             ds = _device_scene(fixture["scene"], backend)
             features = ds.features(variant)
             tree = int(p["bounces"]) > 0
@@ -511,7 +511,7 @@ class WhittedKind(Kind):
         return spec, fixture, backend, variant
 
     def render(self, state):
-        from ..whitted import render_whitted
+        from ..device.whitted import render_whitted
         spec, fx, backend, variant = state
         p = spec.params
         return render_whitted(fx["scene"], backend, variant, shadows=p["shadows"], bounces=int(p["bounces"]),
@@ -703,7 +703,7 @@ def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camer
     the ray cannot tell from it (a shared edge, a graze)."""
     from ..reference import compare_hits
     from ..reference.tracer import RefHits
-    from ..tracing import camera_rays
+    from ..scene.model import camera_rays
     ref_tri = np.asarray(ref_tri).astype(np.int64)
     hit = ref_tri >= 0
     ref = RefHits(np.where(hit, np.asarray(ref_t, np.float64), np.inf), np.where(hit, ref_tri, -1),
@@ -715,18 +715,18 @@ def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camer
 
 class use_kernel_tree:
     """Compile from another kernel tree in this process (the reference, beside the submission that
-    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.kernels.include_dirs)."""
+    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.device.kernels.include_dirs)."""
 
     def __init__(self, root):
         self.root = Path(root)
 
     def __enter__(self):
-        from .. import kernels
+        from ..device import kernels
         self.saved = kernels.use_kernel_dir(self.root)
         return self
 
     def __exit__(self, *exc):
-        from .. import kernels
+        from ..device import kernels
         kernels.KERNEL_DIR = self.saved
 
 
@@ -760,7 +760,7 @@ def _fetch_test_arrays(count: int, seed: int) -> list[np.ndarray]:
     """One host array a scene buffer (RT_SCENE_PARAMS order): random bits with the float specials
     (NaN, infinities, -0, a denormal, the largest float) up front, an odd node count (the OpenCL node
     image packs two nodes a texel) and a one-element buffer."""
-    from ..device_scene import SCENE_ELEMENTS
+    from ..device.scene import SCENE_ELEMENTS
     rng = np.random.default_rng(seed)
     info = np.iinfo(np.int32)
     out = []
@@ -787,8 +787,8 @@ class FetchSceneKind(Kind):
         return {"arrays": _fetch_test_arrays(int(spec.params["count"]), int(spec.params["seed"]))}
 
     def setup(self, spec, fixture, backend):
-        from ..device_scene import SCENE_ELEMENTS
-        from ..kernels import MEMORY_STEP, SceneFeatures, build_defines, kernel_source
+        from ..device.scene import SCENE_ELEMENTS
+        from ..device.kernels import MEMORY_STEP, SceneFeatures, build_defines, kernel_source
         variant = spec_variant(spec)
         program = backend.compile(kernel_source(MEMORY_STEP, backend.language),
                                   build_defines(variant, SceneFeatures()))
@@ -801,7 +801,7 @@ class FetchSceneKind(Kind):
         return backend, program, args, arrays, buffers
 
     def run(self, state):
-        from ..device_scene import SCENE_ELEMENTS
+        from ..device.scene import SCENE_ELEMENTS
         backend, program, args, arrays, _ = state
         problems, total = [], 0
         for which, a in enumerate(arrays):
@@ -855,7 +855,7 @@ class PlacementKind(RenderKind):
     params = {**RenderKind.params, "node_memory": "texture", "constants": "", "ray_memory": ""}
 
     def setup(self, spec, fixture, backend):
-        from ..kernels import load_program
+        from ..device.kernels import load_program
         spec_, fx, backend, variant = super().setup(spec, fixture, backend)
         base = self.global_variant(variant)
         load_program(backend, _primary_step(base), base, _device_scene(fx["scene"], backend).features(base),
@@ -867,7 +867,7 @@ class PlacementKind(RenderKind):
         return variant.with_(node_memory="global", constants="constant", ray_memory="registers")
 
     def run(self, state):
-        from ..rendering import render
+        from ..device.rendering import render
         spec, fx, backend, variant = state
         got = self.render(state)
         base = render(fx["scene"], backend, self.global_variant(variant), write_hits=True)
@@ -892,9 +892,9 @@ class NvccKind(Kind):
               "ray_memory": "", "block": None, "functions": [], "arch": "sm_90"}
 
     def setup(self, spec, fixture, backend):
-        from ..device_scene import scene_features, scene_kdtree
-        from ..kernels import build_defines, build_options, kernel_source
-        from ..nvcc import nvcc_available, nvcc_ptx, nvcc_resources
+        from ..device.scene import scene_features, scene_kdtree
+        from ..device.kernels import build_defines, build_options, kernel_source
+        from ..backends.nvcc import nvcc_available, nvcc_ptx, nvcc_resources
         if not nvcc_available():
             return None
         variant = spec_variant(spec)
@@ -913,7 +913,7 @@ class NvccKind(Kind):
         if state is None:
             return Outcome(0.0, "skipped: nvcc (the CUDA toolkit) is not on PATH on this grading machine, so the "
                                 "CUDA kernel was not compiled; the course's grader has it", skipped=True)
-        from .. import kernels
+        from ..device import kernels
         from .regions import stubbed_functions
         spec, variant, path, resources, ptx = state
         problems = []

@@ -177,7 +177,7 @@ SCENE_FACTORIES = {"glass": "rtlab.scene.materials:glass_scene"}
 def _scene(name: str, size: tuple[int, int]):
     key = (name, size)
     if key not in _scenes:
-        from ..device_scene import scene_kdtree
+        from ..device.scene import scene_kdtree
         from ..scene import load_scene
         if name in SCENE_FACTORIES:
             import importlib

@@ -263,7 +263,7 @@ def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_
     from) and which functions in it are still the template's stubs; with ``variant`` (and the lab
     ``step`` whose kernel runs), a warning when the kernels it launches call one of them."""
     import os
-    from .. import kernels as kmod
+    from ..device import kernels as kmod
     from ..paths import REFERENCE_KERNEL_DIR
     root = Path(kmod.KERNEL_DIR)
     env = os.environ.get("RTLAB_KERNEL_DIR")
@@ -280,7 +280,7 @@ def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_
     line = (f"kernel tree: {root} ({origin}): {len(names)} functions still hold the template's stub "
             f"({', '.join(sorted(names)[:8])}{', ...' if len(names) > 8 else ''})")
     if variant is not None:
-        from ..kernels import SceneFeatures, build_defines, kernel_source, primary_step
+        from ..device.kernels import SceneFeatures, build_defines, kernel_source, primary_step
         from .cpp import Preprocessor
         try:
             source = kernel_source(step or primary_step(variant), "opencl")

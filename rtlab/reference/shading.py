@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..device_scene import AMBIENT, BACKGROUND
+from ..scene.materials import AMBIENT, BACKGROUND
 from ..scene.model import Scene
 
 

@@ -22,8 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..device_scene import AMBIENT, BACKGROUND
-from ..scene.materials import MIN_WEIGHT
+from ..scene.materials import AMBIENT, BACKGROUND, MIN_WEIGHT
 from ..scene.model import Camera, Scene
 from .metrics import image_rmse_psnr
 from .shading import to_rgb8
@@ -150,7 +149,7 @@ def reference_whitted(scene: Scene, camera: Camera | None = None, bounces: int =
                       fresnel: str = "schlick", min_weight: float = MIN_WEIGHT) -> ReferenceWhitted:
     """Render the scene's (or ``camera``'s) view: the image, the unclamped colours and the ray tree
     (triangle id of every node's ray per pixel; NO_RAY where a node spawned none)."""
-    from ..tracing import camera_rays
+    from ..scene.model import camera_rays
     camera = camera or scene.camera
     tracer = _Tracer(scene, shadows, fresnel, min_weight)
     o32, d32 = camera_rays(camera)

@@ -36,12 +36,17 @@ from typing import Callable
 
 import numpy as np
 
+from rtlab.device.constants import kernel_constant
 from rtlab.errors import SceneError
 from rtlab.scene.model import Camera, Light, Material, Scene
 
-# Children lighter than this are not spawned (sync with RT_MIN_WEIGHT in kernels/shared/rt_whitted.h).
-MIN_WEIGHT = 1.0 / 512.0
-# The RT_MAX_DEPTH a scene can need at most (rtlab.kernels.SceneFeatures.max_bounces default).
+# Children lighter than this are not spawned: RT_MIN_WEIGHT of kernels/shared/rt_whitted.h.
+MIN_WEIGHT = float(kernel_constant("RT_MIN_WEIGHT"))
+# What every shading model (kernels, float64 references) lights a miss and a surface with: the rgb of
+# the background, and the ambient term (the host passes both in RtFrame.background)
+BACKGROUND = (0.10, 0.10, 0.12)
+AMBIENT = 0.15
+# The RT_MAX_DEPTH a scene can need at most (rtlab.device.kernels.SceneFeatures.max_bounces default).
 MAX_BOUNCES_CAP = 16
 # Relative headroom on the float64 weight bound: float32 products of weights round up by ulps.
 WEIGHT_ROUNDING = 1e-5
@@ -156,7 +161,7 @@ def reachable_bounces(materials: list[Material], min_weight: float = MIN_WEIGHT,
 
 
 def shading_features(scene: Scene) -> dict:
-    """SceneFeatures fields for shading (rtlab.kernels.SceneFeatures): lights present, any material
+    """SceneFeatures fields for shading (rtlab.device.kernels.SceneFeatures): lights present, any material
     that reflects (a mirror; or a transparent one: Fresnel and total internal reflection reflect
     too), any that transmits, and the deepest bounce with weight left."""
     used = used_materials(scene)

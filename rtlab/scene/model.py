@@ -215,3 +215,20 @@ class Scene:
     def bounds(self) -> np.ndarray:
         """(2, 3) float32 min and max corner."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+
+def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The primary rays of every pixel in float32, row-major from the top-left pixel, built with the
+    same operations as camera_ray() in kernels/shared/rt_types.h (the kernels' own rays)."""
+    eye, u, v, w = camera.basis()
+    x = np.arange(camera.width, dtype=np.float32)
+    y = np.arange(camera.height, dtype=np.float32)
+    one, two, half = np.float32(1), np.float32(2), np.float32(0.5)
+    sx = two * (x + half) / np.float32(camera.width) - one
+    sy = one - two * (y + half) / np.float32(camera.height)
+    sx, sy = np.meshgrid(sx, sy)
+    d = (w[None, None, :] + u[None, None, :] * sx[..., None]) + v[None, None, :] * sy[..., None]
+    d = d * (one / np.sqrt((d * d).sum(axis=-1, dtype=np.float32)))[..., None]
+    d = d.reshape(-1, 3).astype(np.float32)
+    o = np.broadcast_to(eye, d.shape).astype(np.float32)
+    return o, d

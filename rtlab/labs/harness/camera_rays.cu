@@ -1,5 +1,5 @@
 // Grader harness (CUDA): the ray camera_ray() builds for every pixel, written out for the host to
-// check against rtlab.tracing.camera_rays. Not part of any lab step; students do not edit it.
+// check against rtlab.device.tracing.camera_rays. Not part of any lab step; students do not edit it.
 #include "rt_types.h"
 
 __constant__ RtFrame c_frame;

@@ -6,11 +6,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .backends import get_backend
+from ..backends import get_backend
 from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE
-from .scene.model import Scene
-from .tracing import TraceResult, default_variant, device_scene, unpack_hits
+from ..scene.model import Scene
+from .tracing import TraceResult, default_variant, unpack_hits
+from .scene import device_scene
 
 
 @dataclass
@@ -37,7 +38,7 @@ class RenderResult:
 def render(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
            repeats: int = 1, warmup: int = 0, write_hits: bool = False, device: str | None = None) -> RenderResult:
     """Render the scene's camera view. Times ``repeats`` launches after ``warmup`` untimed ones.
-    ``variant`` None: rtlab.tracing.default_variant(backend)."""
+    ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     variant = variant or default_variant(backend)

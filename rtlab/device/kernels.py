@@ -2,30 +2,37 @@
 
 Every lab step is a pair ``kernels/cuda/<step>.cu`` / ``kernels/opencl/<step>.cl``; algorithm code
 lives once in ``kernels/shared/*.h``. Variant names map to the integer codes listed atop
-``kernels/shared/rt_port.h``. Scene features switch code off that a scene does not need.
+``kernels/shared/rt_port.h``, read from there (rtlab.device.constants). Scene features switch code
+off that a scene does not need.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from .errors import VariantError
-from .paths import KERNEL_DIR
+from ..errors import VariantError
+from ..paths import KERNEL_DIR
+from .constants import kernel_constant
 
-# name -> code; the codes are the RT_* constants atop kernels/shared/rt_port.h. A name is listed
-# here once its kernels exist in both languages. "bvh-packet" is the BVH walked by packets of
-# PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
-TRAVERSALS = {"stack": 0, "packet": 1, "restart": 2, "shortstack": 3, "ropes": 4, "bvh": 5, "bvh-packet": 6}
-INTERSECTIONS = {"moller": 0, "wald": 1, "plucker": 2, "watertight": 3}
-NODE_MEMORY = {"global": 0, "texture": 1}
+
+def _codes(prefix: str, names) -> dict[str, int]:
+    """name -> the code #define'd as prefix + NAME in rt_port.h ("bvh-packet" -> RT_TRAVERSAL_BVH_PACKET)."""
+    return {name: int(kernel_constant(prefix + name.upper().replace("-", "_"))) for name in names}
+
+
+# A name is listed here once its kernels exist in both languages. "bvh-packet" is the BVH walked by
+# packets of PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
+TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet"))
+INTERSECTIONS = _codes("RT_ISECT_", ("moller", "wald", "plucker", "watertight"))
+NODE_MEMORY = _codes("RT_MEM_", ("global", "texture"))
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
-CONST_MEMORY = {"constant": 2, "global": 0}
-RAY_MEMORY = {"registers": 3, "shared": 4, "indexed": 5}
-RAY_ORDERS = {"rows": 0, "morton": 1}
+CONST_MEMORY = _codes("RT_MEM_", ("constant", "global"))
+RAY_MEMORY = _codes("RT_MEM_", ("registers", "shared", "indexed"))
+RAY_ORDERS = _codes("RT_ORDER_", ("rows", "morton"))
 MEMORY_STEP = "01_memory"
-TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.tracing.TRACE_BLOCK)
-PACKET_LANES = 8          # rays a work-item of the bvh-packet traversal (RT_LANES): one AVX register
-PACKET_WIDTH = 4          # children a node of its BVH (RT_PACKET_WIDTH, rtlab/accel/bvh_packet.py)
+TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.device.tracing.TRACE_BLOCK)
+PACKET_LANES = int(kernel_constant("RT_LANES"))           # rays a work-item of bvh-packet: one AVX register
+PACKET_WIDTH = int(kernel_constant("RT_PACKET_WIDTH"))    # children a node of its BVH (rtlab/accel/bvh_packet.py)
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -150,12 +157,12 @@ class Variant:
 
 @dataclass(frozen=True)
 class SceneFeatures:
-    """What a scene needs compiled in; derived by :func:`rtlab.device_scene.scene_features`."""
+    """What a scene needs compiled in; derived by :func:`rtlab.device.scene.scene_features`."""
     stack_size: int = 64          # kd-tree depth + 1
     smooth_normals: bool = False
     n_lights: int = 1
     n_materials: int = 1
-    near_origin: bool = False     # RT_BVH_BOX_FMA: the BVH may use the fused box test (device_scene.near_origin)
+    near_origin: bool = False     # RT_BVH_BOX_FMA: the BVH may use the fused box test (scene.near_origin)
     # Shading features (§3.2): the defaults are the general kernel, which compiles everything in.
     # A scene-specialised kernel leaves out what its scene cannot use; the image does not change.
     has_lights: bool = True       # RT_LIGHTS, RT_SHADOWS: no lights, no lighting loop, no shadow rays
@@ -207,7 +214,7 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
 # defaults add a slow-path branch per division (the trace kernel's SASS was twice OpenCL's length).
 # Both GPU backends then compute the same bits, and the kernels' rounding bounds (RT_T_PAD in
 # rt_intersect.h) already allow a reciprocal that is not correctly rounded. Every CUDA compile uses
-# them: the backend's and the offline nvcc report's (rtlab.nvcc).
+# them: the backend's and the offline nvcc report's (rtlab.backends.nvcc).
 CUDA_PRECISION_OPTIONS = ("--prec-div=false", "--prec-sqrt=false")
 
 

@@ -27,7 +27,7 @@ lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write th
 def lab_list():
     """Lab steps with a grading config: tests, points, visibility."""
     from rich.table import Table
-    from .config import lab_names, load_config
+    from ..labs.config import lab_names, load_config
     table = Table(title="rtlab lab steps")
     for col in ("step", "title", "files (functions)", "tests", "points"):
         table.add_column(col)
@@ -44,7 +44,7 @@ def lab_list():
 def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary"),
                  out: Optional[Path] = typer.Option(None, help="folder to write (default STEP-template)")):
     """Write the step's template: the kernels' files of the step with the student's regions stubbed."""
-    from .template import write_template
+    from ..labs.template import write_template
     for p in write_template(step, out or Path(f"{step}-template")):
         console.print(f"wrote {p}")
 
@@ -53,8 +53,8 @@ def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary
 def lab_release(out: Path = typer.Argument(..., help="folder to write (new or empty)"),
                 force: bool = typer.Option(False, "--force", help="replace the folder if it exists")):
     """Write the student release: the project with every solution stubbed and the visible tests only."""
-    from .release import write_release
-    from .trees import tree_stubs
+    from ..labs.release import write_release
+    from ..labs.trees import tree_stubs
     path = write_release(out, force=force)
     n = sum(len(v) for v in tree_stubs(path / "kernels").values())
     console.print(f"wrote {path}/ (pyproject.toml, README.md, rtlab/, kernels/ with {n} functions stubbed, "
@@ -81,11 +81,11 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
                                                                "(the bundle's self-check of the reference)")):
     """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
     from ..errors import RtlabError
-    from .results import FORMATS, report_table, write_report
+    from ..labs.results import FORMATS, report_table, write_report
     if bundle:
         if step is None:
             raise RtlabError("--bundle needs the lab step: rtlab grade --bundle 00_primary")
-        from .bundle import write_bundle
+        from ..labs.bundle import write_bundle
         zpath = write_bundle(step, out)
         console.print(f"wrote {zpath.parent}/ (setup.sh, run_autograder, rtlab, scenes) and {zpath}")
         return
@@ -93,7 +93,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
         raise RtlabError("usage: rtlab grade STEP SUBMISSION_DIR (or rtlab grade --bundle STEP)")
     if fmt not in FORMATS:
         raise RtlabError(f"--format must be one of {', '.join(FORMATS)}, got '{fmt}'")
-    from .grader import grade, grading_failure_report
+    from ..labs.grader import grade, grading_failure_report
     quiet = fmt != "table" and out is None     # JSON goes to stdout: keep it clean
     status = console if not quiet else Console(stderr=True)
 
@@ -107,7 +107,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
             write_report(partial, out, out_fmt)
 
     try:
-        from .grader import read_secret
+        from ..labs.grader import read_secret
         secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
                        tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,
@@ -122,7 +122,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
     if out is not None:
         write_report(report, out, out_fmt)
     if quiet:
-        from .results import full_dict, gradescope_dict
+        from ..labs.results import full_dict, gradescope_dict
         data = full_dict(report) if fmt == "json" else gradescope_dict(report)
         sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
     else:
@@ -147,7 +147,7 @@ def inspect_command(scene: str = typer.Argument("default", help="preset name, 'd
                     window: str = typer.Option("1024x768", help="window / screenshot size WxH")):
     """Show the scene in pyvista: mesh, kd-tree cells, camera frustum, a pixel's rays and visited leaves."""
     from ..errors import RtlabError
-    from ..inspect import inspect_scene
+    from ..viz import inspect_scene
     try:
         w, h = (int(v) for v in window.lower().split("x"))
     except ValueError:

@@ -9,18 +9,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .backends import get_backend
-from .device_scene import DeviceScene, scene_fingerprint
-from .errors import RtlabError
+from ..backends import get_backend
+from ..errors import RtlabError
+from ..scene.model import Scene
 from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
-from .scene.model import Camera, Scene
+from .scene import device_scene
 
 PRIMARY_STEP = "00_primary"
 TRACE_BLOCK = 128
 
-_device_scenes: dict = {}
-DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its buffers) past that
 # Directions whose largest component lies outside this range are scaled by a power of two into
 # [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
 # read as a zero direction), above it products with coordinates overflow.
@@ -40,31 +38,6 @@ GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=
 def default_variant(backend) -> Variant:
     """The variant the library runs on ``backend`` when none is named (see DEFAULT_VARIANT)."""
     return GPU_DEFAULT_VARIANT if backend.is_gpu() else DEFAULT_VARIANT
-
-
-def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
-    """The scene uploaded to ``backend``, once per scene content (:func:`scene_fingerprint`: vertices,
-    faces, material ids, normals) and backend, for the most recently used few: editing a scene's
-    arrays in place or assigning new ones uploads it again, never returns the old hits. ``tree``
-    uploads with that kd-tree instead of the cached build (kept for this content and backend).
-    The scene is validated (Scene.validate) before its first upload; its material ids are checked
-    against its materials on every call, since materials can be reassigned without a new upload."""
-    key = (scene_fingerprint(scene), id(backend))
-    entry = _device_scenes.pop(key, None)
-    if entry is None or entry[0] is not backend or tree is not None:
-        scene.validate()                    # may store the arrays as float32/int32: key them so
-        key = (scene_fingerprint(scene), id(backend))
-        entry = _device_scenes.pop(key, None)
-        if entry is None or entry[0] is not backend or tree is not None:
-            entry = (backend, DeviceScene.upload(backend, scene, tree))
-    ds = entry[1]
-    if ds.max_material_id >= len(scene.materials):
-        scene.validate()                    # raises, naming the first face with a bad id
-    ds.scene = scene                        # same content; lights, materials, camera from the caller's
-    _device_scenes[key] = entry             # most recent last
-    while len(_device_scenes) > DEVICE_SCENES_KEPT:
-        _device_scenes.pop(next(iter(_device_scenes)))
-    return ds
 
 
 @dataclass
@@ -132,14 +105,14 @@ _ray_buffers: dict = {}
 
 
 def ray_buffers(backend, n: int):
-    """Device buffers for n rays and their hits (origins, directions, hits), kept per backend for the
-    most recent ray count: a caller tracing batch after batch of one size allocates once."""
-    key = id(backend)
-    entry = _ray_buffers.get(key)
-    if entry is None or entry[0] is not backend or entry[1] != n:
-        entry = (backend, n, (backend.empty(n * 16), backend.empty(n * 16), backend.empty(n * HIT_DTYPE.itemsize)))
-        _ray_buffers[key] = entry
-    return entry[2]
+    """Device buffers for n rays and their hits (origins, directions, hits), kept per backend (the
+    object itself: backends live as long as the process) for the most recent ray count: a caller
+    tracing batch after batch of one size allocates once."""
+    entry = _ray_buffers.get(backend)
+    if entry is None or entry[0] != n:
+        entry = (n, (backend.empty(n * 16), backend.empty(n * 16), backend.empty(n * HIT_DTYPE.itemsize)))
+        _ray_buffers[backend] = entry
+    return entry[1]
 
 
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
@@ -207,20 +180,3 @@ def _grid_launch(program, ds, variant: Variant, n: int, width: int, buffers):
     height = n // width
     args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
     return lambda: program.launch("trace_ray_grid", (width, height), variant.block, args, constants=("frame",))
-
-
-def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """The primary rays of every pixel in float32, row-major from the top-left pixel, built with the
-    same operations as camera_ray() in kernels/shared/rt_types.h."""
-    eye, u, v, w = camera.basis()
-    x = np.arange(camera.width, dtype=np.float32)
-    y = np.arange(camera.height, dtype=np.float32)
-    one, two, half = np.float32(1), np.float32(2), np.float32(0.5)
-    sx = two * (x + half) / np.float32(camera.width) - one
-    sy = one - two * (y + half) / np.float32(camera.height)
-    sx, sy = np.meshgrid(sx, sy)
-    d = (w[None, None, :] + u[None, None, :] * sx[..., None]) + v[None, None, :] * sy[..., None]
-    d = d * (one / np.sqrt((d * d).sum(axis=-1, dtype=np.float32)))[..., None]
-    d = d.reshape(-1, 3).astype(np.float32)
-    o = np.broadcast_to(eye, d.shape).astype(np.float32)
-    return o, d

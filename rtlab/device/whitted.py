@@ -35,12 +35,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .backends import get_backend
-from .errors import RtlabError
+from ..backends import get_backend
+from ..errors import RtlabError
 from .kernels import SceneFeatures, Variant, load_program
 from .layout import HIT_DTYPE
-from .scene.model import Scene
-from .tracing import TraceResult, default_variant, device_scene, unpack_hits
+from ..scene.model import Scene
+from .tracing import TraceResult, default_variant, unpack_hits
+from .scene import device_scene
 
 SHADOWS_STEP = "04_shadows"
 TREE_STEP = "05_kernel_tree"
@@ -106,7 +107,7 @@ class WhittedResult:
 
 def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact: bool = False,
                     write_hits: bool = False, tree: bool = False, schedule: str = "tree") -> dict:
-    """Defines beyond the scene's own (rtlab.kernels.build_defines) for one render mode."""
+    """Defines beyond the scene's own (rtlab.device.kernels.build_defines) for one render mode."""
     if shadows not in SHADOW_MODES:
         raise RtlabError(f"shadows must be one of {', '.join(SHADOW_MODES)}, not {shadows!r}")
     if schedule not in SCHEDULES:
@@ -135,7 +136,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
                    defines: dict | None = None) -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
     (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones. ``defines``
-    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: rtlab.tracing.default_variant(backend)."""
+    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     variant = variant or default_variant(backend)
@@ -441,7 +442,7 @@ def render_whitted_command(console, scene: Scene, backend, variant: Variant, sha
                            schedule: str = "tree") -> WhittedResult:
     """`rtlab render --shadows/--bounces`: render with a material preset, print the figures, write the PNG."""
     from .rendering import save_png
-    from .scene.materials import apply_materials
+    from ..scene.materials import apply_materials
     scene = apply_materials(scene, materials)
     cam = scene.camera
     with console.status(f"rendering {scene.name} {cam.width}x{cam.height}, shadows {shadows}, {bounces} bounces..."):
@@ -460,7 +461,7 @@ def render_whitted_command(console, scene: Scene, backend, variant: Variant, sha
         console.print(f"no material of {scene.name} reflects or transmits with materials {materials!r}, so no "
                       "secondary rays were traced; the paper's Fig. 6 materials: --materials paper")
     if check:
-        from .reference.whitted import reference_whitted, whitted_error
+        from ..reference.whitted import reference_whitted, whitted_error
         with console.status("float64 Whitted reference..."):
             ref = reference_whitted(scene, cam, bounces=result.depth, shadows=shadows != "none", fresnel=fresnel)
         tree = result.tree if result.tree is not None else {"P": result.hits.tri}

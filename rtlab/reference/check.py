@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene.model import Camera, Scene
+from ..scene.model import Camera, Scene
 
 
 @dataclass
@@ -33,9 +33,9 @@ _CAMERA_HITS_KEPT = 4
 def reference_camera_hits(scene: Scene, camera: Camera):
     """float64 reference hits of the camera's primary rays (the same float32 rays the kernels trace).
     Kept for the last few (geometry, camera) pairs: a bench compares many variants against one view."""
-    from .device_scene import scene_fingerprint
-    from .reference import reference_trace
-    from .tracing import camera_rays
+    from ..device.scene import scene_fingerprint
+    from . import reference_trace
+    from ..scene.model import camera_rays
     # keyed by content, not id(): an edited scene must not get the hits of its old geometry
     key = (scene_fingerprint(scene), tuple(camera.eye), tuple(camera.target), tuple(camera.up), camera.fov_deg,
            camera.width, camera.height)
@@ -51,7 +51,7 @@ def reference_camera_hits(scene: Scene, camera: Camera):
 
 
 def check_hits(scene: Scene, origins, directions, tri, t, ref=None):
-    from .reference import compare_hits, reference_trace
+    from . import compare_hits, reference_trace
     if ref is None:
         ref = reference_trace(scene.vertices, scene.faces, origins, directions)
     return compare_hits(ref, tri, t, scene.vertices, scene.faces, origins, directions)
@@ -59,8 +59,8 @@ def check_hits(scene: Scene, origins, directions, tri, t, ref=None):
 
 def check_render(scene: Scene, result, camera: Camera) -> RenderCheck:
     """Compare a render made with ``write_hits=True`` against the float64 reference."""
-    from .reference import compare_hits, image_rmse_psnr
-    from .reference.shading import reference_shade, to_rgb8
+    from . import compare_hits, image_rmse_psnr
+    from .shading import reference_shade, to_rgb8
     o, d, ref = reference_camera_hits(scene, camera)
     comparison = compare_hits(ref, result.hits.tri, result.hits.t, scene.vertices, scene.faces, o, d)
     ref_rgb = to_rgb8(reference_shade(scene, o, d, ref.tri, ref.t, ref.u, ref.v))

@@ -8,7 +8,7 @@ Everything drawn is computed from what rtlab itself uses: the cells are decoded 
 kernels traverse (rtlab.accel.kdtree's helpers, each child's box cut from its parent's at the
 split), the pixel's rays are traced on a backend (primary hits with rtlab.trace; shadow,
 reflection and refraction rays through the shading kernels' own spawn functions,
-rtlab.whitted.probe_*, where the scene has lights and such materials), and the visited leaves come
+rtlab.device.whitted.probe_*, where the scene has lights and such materials), and the visited leaves come
 from walking the tree along the primary ray in float64 on the host.
 
 Headless (tests, notebooks, ``--screenshot``): VTK draws off-screen through EGL (Debian
@@ -279,7 +279,7 @@ RAY_COLORS = {"primary": "#ffd400", "shadow": "#4a90e2", "shadow-blocked": "#303
 
 
 def _trace_hits(scene, backend, o, d):
-    from .tracing import trace
+    from .device.tracing import trace
     return trace(scene, np.atleast_2d(o), np.atleast_2d(d), backend=backend)
 
 
@@ -287,8 +287,8 @@ def expand_shadow(scene, backend, seg: RaySegment, index: int, depth: int) -> li
     """Shadow rays from a hit to each light, decided by the shading kernels' own light_visible."""
     if not seg.hit or not scene.lights or seg.kind == "shadow":
         return []
-    from .tracing import TraceResult
-    from .whitted import probe_shadow_rays
+    from .device.tracing import TraceResult
+    from .device.whitted import probe_shadow_rays
     hits = TraceResult(np.array([seg.t], np.float32), np.array([seg.tri], np.int32),
                        np.array([seg.u], np.float32), np.array([seg.v], np.float32), 0.0)
     p = seg.hit_point
@@ -306,8 +306,8 @@ def _expand_secondary(kind: str):
     def expand(scene, backend, seg: RaySegment, index: int, depth: int) -> list[RaySegment]:
         if not seg.hit or seg.kind == "shadow":
             return []
-        from .tracing import TraceResult
-        from .whitted import probe_secondary_rays
+        from .device.tracing import TraceResult
+        from .device.whitted import probe_secondary_rays
         hits = TraceResult(np.array([seg.t], np.float32), np.array([seg.tri], np.int32),
                            np.array([seg.u], np.float32), np.array([seg.v], np.float32), 0.0)
         o, w, d, child = probe_secondary_rays(scene, backend, seg.direction[None].astype(np.float32), hits, kind)
@@ -340,7 +340,7 @@ def pixel_ray_tree(scene, x: int, y: int, backend=None, kinds=None, max_depth: i
     camera ray rtlab.camera_rays builds, the same as camera_ray on the device), then the rays each
     hit spawns, per :data:`RAY_EXPANDERS` (default: what the scene's lights and materials call
     for), down to ``max_depth`` bounces. Segment 0 is the primary ray."""
-    from .tracing import camera_rays
+    from .scene.model import camera_rays
     cam = scene.camera
     if not (0 <= x < cam.width and 0 <= y < cam.height):
         raise InspectError(f"pixel ({x}, {y}) is outside the {cam.width}x{cam.height} image")
@@ -463,7 +463,7 @@ class SceneView:
 def build_view(scene, depth: int = 6, pixel: tuple[int, int] | None = None, backend=None,
                ray_kinds=None, max_depth: int = 3) -> SceneView:
     """Everything to draw, without drawing it (no OpenGL needed)."""
-    from .device_scene import scene_kdtree
+    from .device.scene import scene_kdtree
     tree = scene_kdtree(scene)
     nodes, boxes, _ = kd_cells(tree, depth)
     view = SceneView(scene, tree, depth, nodes, boxes, pixel)

@@ -62,8 +62,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from .errors import RtlabError
-from .scene.model import Camera, Light, Material, Scene
+from ..errors import RtlabError
+from ..scene.model import Camera, Light, Material, Scene
 
 U32 = 2.0 ** -24                # float32 unit roundoff
 SPHERE_CENTRE = (1.5e5, 1.2e3, -2.2e5)
@@ -127,10 +127,10 @@ class Case:
         """float64 closest hits (computed once): brute force where it is cheap, else the
         bit-identical BVH tracer; for a render case (family 11) the float64 Whitted render."""
         if self._reference is None and self.render is not None:
-            from .reference.whitted import reference_whitted
+            from ..reference.whitted import reference_whitted
             self._reference = reference_whitted(self.scene, bounces=self.render["bounces"])
         if self._reference is None:
-            from .reference import brute_force_trace, reference_trace
+            from ..reference import brute_force_trace, reference_trace
             v, f = self.scene.vertices, self.scene.faces
             trace_f64 = brute_force_trace if self.n_rays * f.shape[0] <= 2e7 else reference_trace
             self._reference = trace_f64(v, f, self.origins, self.directions)
@@ -328,7 +328,7 @@ def family_plane(n_rays: int, quads: int, seed: int = 2) -> list[Case]:
 
 def _split_planes(scene: Scene) -> list[np.ndarray]:
     """Per axis: the kd-tree's split positions and the box faces (vertex coordinates) of the scene."""
-    from .device_scene import scene_kdtree
+    from ..device.scene import scene_kdtree
     tree = scene_kdtree(scene)
     inner = ~tree.is_leaf()
     axis, pos = tree.split_axis()[inner], tree.split_pos()[inner]
@@ -532,9 +532,9 @@ def family_bad_rays(n_sets: int) -> list[Case]:
 def family_random(n_rays: int, scenes=("bunny", "sponza"), size: int = 64, seed: int = 9) -> list[Case]:
     """9. Random rays from points in and around the scene box, any direction, on the paper's scenes
     (a scene whose file is missing is left out)."""
-    from .scene import load_scene
-    from .paths import find_scene_file
-    from .scene.presets import PRESETS
+    from ..scene import load_scene
+    from ..paths import find_scene_file
+    from ..scene.presets import PRESETS
     cases = []
     for name in scenes:
         preset = PRESETS.get(name)
@@ -567,7 +567,7 @@ def family_box_planes(n_rays: int, cubes: int, room_rays: int, seed: int = 10) -
     ray whose coordinates lie within the grid hits. (b) a 1e-3 sphere (SMALL_SPHERE) inside a
     closed 1e5 room centred on the origin; rays from inside the sphere as family 1: every ray must
     hit the sphere, not the room behind it. Both scenes lie near the origin, so the BVH takes its
-    fused box test (rtlab.device_scene.near_origin)."""
+    fused box test (rtlab.device.scene.near_origin)."""
     import trimesh
     rng = np.random.default_rng(seed)
     lo = -(cubes // 2) if cubes % 2 == 0 else 0
@@ -664,8 +664,8 @@ def family_spawn_offsets(size: int, offsets=GLASS_OFFSETS) -> list[Case]:
     (s, s/2, -s) for s in ``offsets``, and the mirror floor scene at the origin, rendered size x size
     with shadows and GLASS_BOUNCES bounces: pixels more than PIXEL_OFF/255 off the float64 Whitted
     reference."""
-    from .scene.materials import glass_scene
-    from .tracing import camera_rays
+    from ..scene.materials import glass_scene
+    from ..scene.model import camera_rays
     base = glass_scene(size)
     scenes = [(f"glass scene at {s:g}", moved_scene(base, (s, 0.5 * s, -s))) for s in offsets]
     scenes.append(("mirror floor 2000 wide at the origin", mirror_floor_scene(size)))
@@ -734,8 +734,8 @@ def trace_case(case: Case, backend, isect: str, traversal: str, conservative: in
     default RT_CONSERVATIVE (on for watertight), 0/1 forces it; ``defines`` add -D switches
     (e.g. RT_HAS_FP64=0 for the watertight test's float-only path). One stack size for every scene
     (ROBUST_STACK_SIZE), so that a program serves all cases."""
-    from .kernels import Variant
-    from .tracing import trace
+    from ..device.kernels import Variant
+    from ..device.tracing import trace
     extra = dict(defines)
     if conservative is not None:
         extra["RT_CONSERVATIVE"] = int(conservative)
@@ -747,7 +747,7 @@ def trace_case(case: Case, backend, isect: str, traversal: str, conservative: in
 
 def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessRow) -> RobustnessRow:
     """Fill the counts of ``row`` from the kernel's hits against the reference."""
-    from .reference import compare_hits, intersect_ray_triangles_f64, usable_triangle_mask
+    from ..reference import compare_hits, intersect_ray_triangles_f64, usable_triangle_mask
     v, f = case.scene.vertices, case.scene.faces
     tri = np.where(np.asarray(tri) < 0, -1, tri).astype(np.int64)
     cmp = compare_hits(ref, tri, t, v, f, case.origins, case.directions, tie_abs=case.tie_abs())
@@ -771,7 +771,7 @@ def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessR
         ff = f[tri[idx]]
         usable = usable_triangle_mask(vv[ff[:, 0]], vv[ff[:, 1]], vv[ff[:, 2]])
         # the kernel's triangle in float64 with the same slack compare_hits gives a tie
-        from .reference.metrics import _barycentric_slack
+        from ..reference.metrics import _barycentric_slack
         eps = _barycentric_slack(tri[idx], case.directions[idx].astype(np.float64), v, f, 1e-4, case.tie_abs())
         t64, _, _ = intersect_ray_triangles_f64(case.origins[idx], case.directions[idx], tri[idx], v, f, eps=eps)
         false[idx] |= ~usable | ~np.isfinite(t64)
@@ -784,20 +784,11 @@ def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessR
 # ---------------------------------------------------------------------------------------------
 # Isolation: a case whose kernel may crash or hang runs in a child process
 # ---------------------------------------------------------------------------------------------
-def _backend_spec(backend) -> tuple[str, str | None]:
-    """(name, device) that get_backend turns back into this backend in another process."""
-    from . import backends
-    for (name, device), b in getattr(backends, "_cache", {}).items():
-        if b is backend and name != "auto":
-            return name, device
-    return backend.name, backend.device_name
-
-
 def render_case(case: Case, backend, isect: str, traversal: str, conservative: int | None = None):
     """Family 11: the case's Whitted render, (image, primary hit ids, kernel ms). Shadows one-pass,
     case.render["bounces"] bounces; ``conservative`` as in trace_case (passed as a define)."""
-    from .kernels import Variant
-    from .whitted import render_whitted
+    from ..device.kernels import Variant
+    from ..device.whitted import render_whitted
     variant = Variant(traversal=traversal, intersection=isect)
     extra = {} if conservative is None else {"RT_CONSERVATIVE": int(conservative)}
     result = render_whitted(case.scene, backend, variant, bounces=case.render["bounces"], defines=extra)
@@ -825,7 +816,7 @@ def _trace_or_failure(case, backend, isect, traversal, conservative):
 
 def _isolated_worker(spec, family, size, case_index, combos, out):
     """Child process: trace one case for each (isect, traversal, conservative), reporting each."""
-    from .backends import get_backend
+    from ..backends import get_backend
     backend = get_backend(*spec)
     case = family_cases(family, size)[case_index]
     for i, (isect, traversal, cons) in enumerate(combos):
@@ -836,13 +827,14 @@ def _isolated_worker(spec, family, size, case_index, combos, out):
 
 def _run_isolated(backend, family, size, case_index, combos, timeout_s):
     """Results per combo: (tri, t, ms) or a failure string, surviving crashes and hangs."""
+    from ..backends import backend_spec
     ctx = mp.get_context("spawn")
     results: dict[int, object] = {}
     pending = list(range(len(combos)))
     while pending:
         q = ctx.Queue()
         todo = [combos[i] for i in pending]
-        proc = ctx.Process(target=_isolated_worker, args=(_backend_spec(backend), family, size, case_index,
+        proc = ctx.Process(target=_isolated_worker, args=(backend_spec(backend), family, size, case_index,
                                                           todo, q), daemon=True)
         proc.start()
         current, deadline = None, time.monotonic() + timeout_s
@@ -888,12 +880,12 @@ def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Ite
                    timeout_s: float = 300.0, progress: Callable[[str], None] | None = None) -> list[RobustnessRow]:
     """Every case of ``families`` x every test x every traversal on ``backend``; one row each.
 
-    isects/traversals default to every name in rtlab.kernels.INTERSECTIONS/TRAVERSALS, read at
+    isects/traversals default to every name in rtlab.device.kernels.INTERSECTIONS/TRAVERSALS, read at
     call time. ``conservative``: RT_CONSERVATIVE settings to run (None = the test's default).
     Families in ``isolate`` run in a child process, so a crash or a hang (``timeout_s`` per test
     and traversal, compile included) is counted instead of ending the run."""
-    from . import kernels
-    from .backends import get_backend
+    from ..device import kernels
+    from ..backends import get_backend
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
     isects = list(isects) if isects is not None else list(kernels.INTERSECTIONS)

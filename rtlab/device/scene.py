@@ -3,24 +3,27 @@ uploaded once per backend.
 
 Buffers follow RT_SCENE_PARAMS in kernels/shared/rt_memory.h: nodes, node_data, objects, tris,
 tri_data, normals, tri_materials. What a variant needs beyond the kd-tree (ropes, a BVH, data
-precomputed for an intersection test) comes from the registries below, built on first use and kept.
-Per-frame constants (camera, scene box, lights, materials) go to constant memory.
+precomputed for an intersection test) comes from the tables below (ACCEL_BUILDERS,
+TRI_DATA_BUILDERS), built by rtlab.accel on first use and kept. Per-frame constants (camera, scene
+box, lights, materials) go to constant memory.
 """
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from .accel.kdtree import KdBuildParams, KdTree
-from .kernels import SceneFeatures
+from ..accel.bvh import load_or_build_bvh
+from ..accel.bvh_packet import PACKET_BUILD, packet_node_data
+from ..accel.kdtree import KdBuildParams, KdTree
+from ..accel.ropes import RECORD_FLOAT4S, build_ropes
+from ..accel.tri_data import plucker_tri_data, wald_tri_data
+from ..scene.materials import AMBIENT, BACKGROUND
+from ..scene.model import Camera, Scene
+from .kernels import PACKET_WIDTH, SceneFeatures
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
-from .scene.model import Camera, Scene
 
-BACKGROUND = (0.10, 0.10, 0.12)
-AMBIENT = 0.15
 DUMMY_F4 = np.zeros((1, 4), np.float32)
 
 
@@ -37,17 +40,41 @@ class AccelArrays:
 # Element type and channels of each RT_SCENE_PARAMS buffer, in order (kernels/shared/rt_memory.h)
 SCENE_ELEMENTS = ((np.int32, 2), (np.float32, 4), (np.int32, 1), (np.float32, 4), (np.float32, 4), (np.float32, 4),
                   (np.int32, 1))
+NO_NODES = np.zeros((1, 2), np.int32)       # the BVH traversals read no kd nodes
 
 
-def kd_accel(scene, tree) -> AccelArrays:
+def kd_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The kd-tree as built: what the stack, packet, restart and short-stack traversals read."""
     return AccelArrays(tree.nodes, DUMMY_F4, tree.objects, tree.bounds, tree.depth + 1)
 
 
-# traversal name -> builder(scene, kd_tree) -> AccelArrays. Variants that read more than the plain
-# kd-tree (ropes, BVH) register theirs; every other traversal reads the kd-tree as built.
-ACCEL_BUILDERS: dict[str, Callable] = {}
-# intersection test name -> builder(scene) -> (3F or F, 4) float32 precomputed per-triangle data
-TRI_DATA_BUILDERS: dict[str, Callable] = {}
+def ropes_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The rope tree on the scene's kd-tree (rt_kd_ropes.h)."""
+    r = build_ropes(tree)
+    records = r.records if len(r.records) else np.zeros((RECORD_FLOAT4S, 4), np.float32)
+    return AccelArrays(r.nodes, records, tree.objects, tree.bounds, tree.depth + 1)
+
+
+def bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's BVH in Aila & Laine's layout (rt_bvh.h); the kd-tree is not used."""
+    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces)
+    return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
+
+
+def bvh_packet_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's BVH in the packet layout (rt_bvh_packet.h); the kd-tree is not used."""
+    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
+    rows, stack = packet_node_data(bvh, scene.vertices, scene.faces, PACKET_WIDTH)
+    return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
+
+
+# traversal name -> builder(scene, kd_tree) -> AccelArrays; every traversal not listed reads the
+# kd-tree as built (kd_accel)
+ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel}
+# intersection test name -> builder(scene) -> (R F, 4) float32 rows precomputed per triangle; a test
+# not listed reads the vertices and gets a dummy element
+TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.faces),
+                     "plucker": lambda scene: plucker_tri_data(scene.vertices, scene.faces)}
 
 
 def scene_fingerprint(scene: Scene) -> bytes:
@@ -67,7 +94,7 @@ def scene_fingerprint(scene: Scene) -> bytes:
 
 def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=None) -> KdTree:
     """The scene's kd-tree, from the on-disk cache when it was built before."""
-    from .accel.cache import load_or_build_kdtree
+    from ..accel.cache import load_or_build_kdtree
     tree, _ = load_or_build_kdtree(scene.vertices, scene.faces, params or KdBuildParams(), progress=progress)
     return tree
 
@@ -95,7 +122,7 @@ def near_origin(scene: Scene) -> bool:
 
 
 def scene_features(scene: Scene, stack_size: int) -> SceneFeatures:
-    from .scene.materials import shading_features
+    from ..scene.materials import shading_features
     return SceneFeatures(stack_size=stack_size,
                          smooth_normals=scene.vertex_normals is not None,
                          n_lights=max(1, len(scene.lights)),
@@ -160,46 +187,51 @@ def triangle_normals(scene: Scene) -> np.ndarray:
 
 
 @dataclass
+class DeviceArray:
+    """A device buffer of ``count`` elements, and the texture/image over it once the texture
+    placement asked for one (made once, kept as long as the buffer)."""
+    buffer: object
+    count: int
+    texture: object = None
+
+
+@dataclass
 class DeviceScene:
     backend: object
     scene: Scene
     tree: KdTree
-    buffers: dict                                   # per-scene buffers: tris, normals, tri_materials
-    accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [device buffers])
-    tri_data: dict = field(default_factory=dict)    # intersection test -> device buffer
-    textures: dict = field(default_factory=dict)    # id(buffer) -> (buffer, Texture): texture placement
-    counts: dict = field(default_factory=dict)      # id(buffer) -> elements (texture extents)
+    arrays: dict                                    # per-scene DeviceArrays: tris, normals, tri_materials
+    accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
+    tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray
     max_material_id: int = 0                        # checked against the scene's materials each use
 
     @classmethod
     def upload(cls, backend, scene: Scene, tree: KdTree | None = None) -> "DeviceScene":
         tree = tree if tree is not None else scene_kdtree(scene)
-        arrays = {"tris": triangle_corners(scene), "normals": triangle_normals(scene),
-                  "tri_materials": np.ascontiguousarray(scene.material_ids, np.int32)}
-        buffers = {name: backend.to_device(a) for name, a in arrays.items()}
-        ds = cls(backend, scene, tree, buffers, max_material_id=int(arrays["tri_materials"].max(initial=0)))
-        for name, a in arrays.items():
-            ds.counts[id(buffers[name])] = len(a)
-        return ds
+        host = {"tris": triangle_corners(scene), "normals": triangle_normals(scene),
+                "tri_materials": np.ascontiguousarray(scene.material_ids, np.int32)}
+        return cls(backend, scene, tree, {name: cls._upload(backend, a) for name, a in host.items()},
+                   max_material_id=int(host["tri_materials"].max(initial=0)))
+
+    @staticmethod
+    def _upload(backend, array: np.ndarray) -> DeviceArray:
+        return DeviceArray(backend.to_device(array), len(array))
 
     def _accel(self, traversal: str):
         family = traversal if traversal in ACCEL_BUILDERS else "kd"
         if family not in self.accel:
-            arrays = ACCEL_BUILDERS[family](self.scene, self.tree) if family != "kd" else kd_accel(self.scene, self.tree)
+            build = ACCEL_BUILDERS.get(family, kd_accel)
+            arrays = build(self.scene, self.tree)
             objects = arrays.objects if arrays.objects.size else np.zeros(1, np.int32)
-            bufs = [self.backend.to_device(arrays.nodes), self.backend.to_device(arrays.node_data),
-                    self.backend.to_device(objects)]
-            for buf, a in zip(bufs, (arrays.nodes, arrays.node_data, objects)):
-                self.counts[id(buf)] = len(a)
-            self.accel[family] = (arrays, bufs)
+            self.accel[family] = (arrays, [self._upload(self.backend, a)
+                                           for a in (arrays.nodes, arrays.node_data, objects)])
         return self.accel[family]
 
-    def _tri_data(self, intersection: str):
+    def _tri_data(self, intersection: str) -> DeviceArray:
         if intersection not in self.tri_data:
             builder = TRI_DATA_BUILDERS.get(intersection)
             data = np.ascontiguousarray(builder(self.scene) if builder else DUMMY_F4, np.float32)
-            self.tri_data[intersection] = self.backend.to_device(data)
-            self.counts[id(self.tri_data[intersection])] = len(data)
+            self.tri_data[intersection] = self._upload(self.backend, data)
         return self.tri_data[intersection]
 
     def features(self, variant) -> SceneFeatures:
@@ -209,20 +241,17 @@ class DeviceScene:
         """Buffers in RT_SCENE_PARAMS order for this variant; with the texture placement, textures
         (CUDA) or images (OpenCL) over them, made on first use and kept."""
         _, (nodes, node_data, objects) = self._accel(variant.traversal)
-        b = self.buffers
-        args = [nodes, node_data, objects, b["tris"], self._tri_data(variant.intersection), b["normals"],
-                b["tri_materials"]]
+        a = self.arrays
+        args = [nodes, node_data, objects, a["tris"], self._tri_data(variant.intersection), a["normals"],
+                a["tri_materials"]]
         if variant.node_memory == "texture":
-            return [self.texture(buf, dtype, channels).arg for buf, (dtype, channels) in zip(args, SCENE_ELEMENTS)]
-        return args
+            return [self._texture(arg, dtype, channels).arg for arg, (dtype, channels) in zip(args, SCENE_ELEMENTS)]
+        return [arg.buffer for arg in args]
 
-    def texture(self, buffer, dtype, channels):
-        """The texture/image over one of this scene's buffers (made once)."""
-        entry = self.textures.get(id(buffer))
-        if entry is None or entry[0] is not buffer:
-            entry = (buffer, self.backend.texture(buffer, dtype, channels, self.counts[id(buffer)]))
-            self.textures[id(buffer)] = entry
-        return entry[1]
+    def _texture(self, array: DeviceArray, dtype, channels):
+        if array.texture is None:
+            array.texture = self.backend.texture(array.buffer, dtype, channels, array.count)
+        return array.texture
 
     def set_constants(self, program, camera: Camera | None, variant) -> None:
         bounds = self._accel(variant.traversal)[0].bounds
@@ -232,5 +261,30 @@ class DeviceScene:
         program.set_constant("materials", material_constants(self.scene))
 
 
-from .accel import tri_data as _tri_data  # noqa: E402,F401  registers TRI_DATA_BUILDERS["wald"], ["plucker"]
-from .accel import bvh as _bvh, bvh_packet as _bvh_packet, ropes as _ropes  # noqa: E402,F401  ACCEL_BUILDERS
+_device_scenes: dict = {}
+DEVICE_SCENES_KEPT = 8   # uploads kept alive; the oldest goes (and frees its buffers) past that
+
+
+def device_scene(scene: Scene, backend, tree=None) -> DeviceScene:
+    """The scene uploaded to ``backend``, once per scene content (:func:`scene_fingerprint`: vertices,
+    faces, material ids, normals) and backend, for the most recently used few: editing a scene's
+    arrays in place or assigning new ones uploads it again, never returns the old hits. ``tree``
+    uploads with that kd-tree instead of the cached build (kept for this content and backend).
+    The scene is validated (Scene.validate) before its first upload; its material ids are checked
+    against its materials on every call, since materials can be reassigned without a new upload.
+    Keyed by the backend object itself (backends live as long as the process: rtlab.backends)."""
+    key = (scene_fingerprint(scene), backend)
+    ds = _device_scenes.pop(key, None)
+    if ds is None or tree is not None:
+        scene.validate()                    # may store the arrays as float32/int32: key them so
+        key = (scene_fingerprint(scene), backend)
+        ds = _device_scenes.pop(key, None)
+        if ds is None or tree is not None:
+            ds = DeviceScene.upload(backend, scene, tree)
+    if ds.max_material_id >= len(scene.materials):
+        scene.validate()                    # raises, naming the first face with a bad id
+    ds.scene = scene                        # same content; lights, materials, camera from the caller's
+    _device_scenes[key] = ds                # most recent last
+    while len(_device_scenes) > DEVICE_SCENES_KEPT:
+        _device_scenes.pop(next(iter(_device_scenes)))
+    return ds

@@ -9,14 +9,14 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from .backends.base import KernelResources
-from .errors import KernelBuildError
-from .kernels import CUDA_PRECISION_OPTIONS
+from ..device.kernels import CUDA_PRECISION_OPTIONS
+from ..errors import KernelBuildError
+from .base import KernelResources, format_build_error
 from .occupancy import SM90, cuda_occupancy
 
 
 def _includes(path) -> list[str]:
-    from .kernels import include_dirs
+    from ..device.kernels import include_dirs
     return [f"-I{d}" for d in include_dirs(path)]
 
 
@@ -35,7 +35,6 @@ def nvcc_resources(path: Path, defines: dict, arch: str = "sm_90", block_threads
                "-o", str(Path(tmp) / "k.cubin"), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        from .backends.opencl import format_build_error
         raise KernelBuildError(format_build_error(path, defines, proc.stderr))
     return parse_ptxas(proc.stderr, block_threads)
 
@@ -51,8 +50,7 @@ def nvcc_ptx(path: Path, defines: dict, arch: str = "sm_90", extra_options: tupl
                "-o", str(out), str(path)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
-            from .backends.opencl import format_build_error
-            raise KernelBuildError(format_build_error(path, defines, proc.stderr))
+                raise KernelBuildError(format_build_error(path, defines, proc.stderr))
         return out.read_text()
 
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kernels import Variant
-from .scene.model import Scene
+from ..device.kernels import Variant
+from ..scene.model import Scene
 
 # The paper's Table 4, stack single-ray column (fps at 1024x1024 on a GeForce 8800 GTS)
 PAPER_STACK_FPS = {"bunny": 43.2, "sponza": 40.5, "kitchen": 39.6, "dragon": 30.4}
@@ -43,7 +43,7 @@ class BenchRow:
 def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, warmup: int = 3,
                  check: bool = True, view: str = "preset") -> BenchRow:
     """Time the render kernel on the scene's camera; check its hits against the float64 reference."""
-    from .rendering import render
+    from ..device.rendering import render
     timed = render(scene, backend, variant, repeats=repeats, warmup=warmup, write_hits=False)
     row = BenchRow(scene.name, view, backend.name, backend.device_name, variant.label(), scene.camera.width,
                    timed.median_ms, timed.mrays_per_s, 1e3 / timed.median_ms,
@@ -52,7 +52,7 @@ def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, war
     row.extra["host_ms"] = timed.host_ms
     row.extra["spread_ms"] = (float(np.min(timed.kernel_ms)), float(np.max(timed.kernel_ms)))
     if check:
-        from .check import check_render
+        from ..reference.check import check_render
         checked = render(scene, backend, variant, repeats=1, write_hits=True)
         row.error = check_render(scene, checked, scene.camera).as_dict()
     return row

@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from .errors import RtlabError
+from ..errors import RtlabError
 
 # The paper's Table 2: #triangles, #nodes, #neleaves, #links, size
 PAPER_TABLE2 = {"bunny": (69451, 379713, 120511, 2.72, "11MB"), "sponza": (66454, 292195, 124059, 2.63, "10MB"),
@@ -29,14 +29,14 @@ err_console = Console(stderr=True, soft_wrap=True)   # an error stays one line
 
 
 def _load_scene(name: str, size: Optional[int] = None):
-    from .scene import load_scene
+    from ..scene import load_scene
     with console.status(f"loading scene {name}..."):
         return load_scene(name, size=size)
 
 
 def _tree(scene):
-    from .accel.cache import load_or_build_kdtree
-    from .accel.kdtree import COMPILING_MESSAGE, KdBuildParams
+    from ..accel.cache import load_or_build_kdtree
+    from ..accel.kdtree import COMPILING_MESSAGE, KdBuildParams
     with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)...") as status:
         def progress(message: str):
             if message == COMPILING_MESSAGE:
@@ -65,7 +65,7 @@ def _int_list(text: str, option: str) -> list[int]:
 @app.command()
 def info():
     """Backends, platforms and devices; why a backend is unavailable."""
-    from .backends import backend_status
+    from ..backends import backend_status
     table = Table(title="rtlab backends")
     for col in ("backend", "id", "platform", "device", "status"):
         table.add_column(col)
@@ -73,14 +73,14 @@ def info():
         table.add_row(row["backend"], row["id"], escape(row["platform"]), escape(row["device"]),
                       "[green]ok[/]" if row["ok"] else f"[yellow]{escape(row['why'])}[/]")
     console.print(table)
-    from .kernels import lab_steps
+    from ..device.kernels import lab_steps
     console.print(f"lab steps with kernels: {', '.join(lab_steps())}")
 
 
 @app.command()
 def scenes():
     """Scene presets: where each file was found and whether its sha256 matches."""
-    from .scene import list_scenes
+    from ..scene import list_scenes
     table = Table(title="rtlab scenes")
     for col in ("scene", "triangles (paper)", "file", "found at", "sha256"):
         table.add_column(col)
@@ -97,7 +97,7 @@ def scenes():
 @app.command()
 def build(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file")):
     """Build (or load from the cache) the SAH kd-tree and print the paper's Table 2 row."""
-    from .accel.kdtree import kd_stats
+    from ..accel.kdtree import kd_stats
     sc = _load_scene(scene)
     t0 = time.perf_counter()
     tree, cached = _tree(sc)
@@ -145,10 +145,10 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
                                                   "installation's)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
     shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
-    from .rendering import render as do_render, save_png
-    from .tracing import default_variant
+    from ..device.rendering import render as do_render, save_png
+    from ..device.tracing import default_variant
     out.parent.mkdir(parents=True, exist_ok=True)     # before the work: a bad --out fails at once
-    from .backends import get_backend
+    from ..backends import get_backend
     be = get_backend(backend, device)
     chosen = {"traversal": traversal, "intersection": isect, "block": _block_shape(block) if block else None}
     variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
@@ -156,7 +156,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     sc = _load_scene(scene, size)
     _tree(sc)
     if shadows is not None or bounces is not None:
-        from .whitted import render_whitted_command
+        from ..device.whitted import render_whitted_command
         render_whitted_command(console, sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel,
                                compact, repeats, check, out, schedule)
         return
@@ -170,7 +170,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
                   f"{variant.label()}: {result.median_ms:.2f} ms (median of {len(result.kernel_ms)}), "
                   f"{result.mrays_per_s:.1f} Mrays/s{regs}{occ}; host {result.host_ms:.2f} ms per launch")
     if check:
-        from .check import check_render
+        from ..reference.check import check_render
         with console.status("float64 reference..."):
             report = check_render(sc, result, sc.camera)
         console.print(f"error vs float64 reference: {report.summary()}")
@@ -184,8 +184,8 @@ app.add_typer(bench_app, name="bench")
 def _use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
     """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
     still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
-    from .kernels import use_kernel_dir
-    from .labs.trees import kernel_tree_summary
+    from ..device.kernels import use_kernel_dir
+    from ..labs.trees import kernel_tree_summary
     if kernels is not None:
         use_kernel_dir(kernels)
     console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)
@@ -200,7 +200,7 @@ def bench_options(kernels: Optional[Path] = typer.Option(None, "--kernels", help
 
 def _bench_scenes(scenes: str, views: str, size: int):
     """(scene, view label) pairs: preset cameras, or the benchmark views of ../shared/bench."""
-    from .scene import bench_camera, load_scene
+    from ..scene import bench_camera, load_scene
     out = []
     for name in [s for s in scenes.split(",") if s]:
         scene = _load_scene(name, size)
@@ -226,9 +226,9 @@ def bench_primary(scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help
                   block: str = typer.Option("32x4"),
                   md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """Primary rays with simple shading (the paper's Table 4 setting): time, Mrays/s, error."""
-    from .backends import get_backend
-    from .bench import PAPER_STACK_FPS, bench_render, rows_markdown
-    from .kernels import Variant
+    from ..backends import get_backend
+    from ..benches.primary import PAPER_STACK_FPS, bench_render, rows_markdown
+    from ..device.kernels import Variant
     variant = Variant(traversal=traversal, intersection=isect, block=_block_shape(block))
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     rows = []
@@ -269,9 +269,9 @@ def bench_rays_cmd(kind: str = typer.Option("primary", help="ray kinds, comma-se
                    md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """Rays through the trace API on the peers' benchmark views (../shared/bench): kernel time, Mrays/s,
     the error against the float64 reference, the render kernel on the same camera, the best peer."""
-    from .backends import get_backend
-    from .benches.rays import COLUMNS, bench_rays, make_rays, rays_markdown, table_rows
-    from .kernels import Variant
+    from ..backends import get_backend
+    from ..benches.rays import COLUMNS, bench_rays, make_rays, rays_markdown, table_rows
+    from ..device.kernels import Variant
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     variants = [Variant(traversal=t, intersection=isect, block=_block_shape(block)) for t in traversals.split(",") if t]
     rows = []
@@ -314,10 +314,10 @@ def bench_cpu_cmd(views: str = typer.Option("bunny/fill,sponza/inside,default",
         if threads < 1:
             raise RtlabError(f"--threads must be at least 1, got {threads}")
         os.environ["POCL_MAX_PTHREAD_COUNT"] = str(threads)    # read when PoCL starts, below
-    from .backends import get_backend
-    from .benches.cpu import COLUMNS, EmbreeTracer, bench_cpu, cpu_markdown, table_rows
-    from .benches.rays import make_rays
-    from .kernels import Variant
+    from ..backends import get_backend
+    from ..benches.cpu import COLUMNS, EmbreeTracer, bench_cpu, cpu_markdown, table_rows
+    from ..benches.rays import make_rays
+    from ..device.kernels import Variant
     variants = [Variant(traversal=t, intersection=isect) for t in traversal.split(",") if t]
     backend = get_backend("opencl", device if device is not None else os.environ.get("RTLAB_DEVICE", "cpu"))
     rows = []
@@ -356,8 +356,8 @@ def bench_intersect(scenes: str = typer.Option("bunny,sponza", help="comma-separ
                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """The paper's Table 3: each triangle test on the first 1000 triangles (time, registers, bytes per
     triangle, error), then in the renderer (Mrays/s and error)."""
-    from .backends import get_backend
-    from .benches.intersect import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS, bench_table3, table3_markdown
+    from ..backends import get_backend
+    from ..benches.intersect import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS, bench_table3, table3_markdown
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     names = [i for i in isects.split(",") if i]
     rows = []
@@ -400,8 +400,8 @@ def bench_robustness(backends: str = typer.Option("auto", help="comma-separated:
                      md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, false hits, NaN t, crashes
     and hangs of every triangle test x traversal against the float64 reference."""
-    from .backends import get_backend
-    from .robustness import TABLE_COLUMNS, aggregate, row_cells, rows_table, run_robustness
+    from ..backends import get_backend
+    from ..robustness import TABLE_COLUMNS, aggregate, row_cells, rows_table, run_robustness
     if any(c not in ("default", "0", "1") for c in conservative.split(",")):
         raise RtlabError(f"--conservative takes default, 0, 1 or 0,1, got '{conservative}'")
     cons = [None if c == "default" else int(c) for c in conservative.split(",")]
@@ -439,8 +439,8 @@ def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help
                   materials: str = typer.Option("paper", help="materials of the bounce rows (rtlab.scene.materials)"),
                   md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
     """The paper's Table 5 (shadows one-pass vs two-pass, 1-3 bounces) and specialised vs general kernels."""
-    from .backends import get_backend
-    from .benches.shading import (PAPER_OCCUPANCY, PAPER_REGISTERS, bench_bounces, bench_shadows,
+    from ..backends import get_backend
+    from ..benches.shading import (PAPER_OCCUPANCY, PAPER_REGISTERS, bench_bounces, bench_shadows,
                                   bench_specialisation, table5_markdown)
     bes = [get_backend(b, device if b == "opencl" else None) for b in backends.split(",")]
     rows = []
@@ -502,7 +502,7 @@ def bench_shading(shadow_scenes: str = typer.Option("bunny,sponza,kitchen", help
 
 
 # Course commands: rtlab lab ..., rtlab grade, rtlab inspect (rtlab/labs/cli.py)
-from .labs.cli import register as _register_course_commands  # noqa: E402
+from .course import register as _register_course_commands  # noqa: E402
 
 _register_course_commands(app)
 
@@ -521,9 +521,9 @@ def bench_traversal(scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conf
                     md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """The paper's Table 4: every traversal variant (and the BVH): fps, Mrays/s, registers,
     occupancy and error, beside the paper's figures."""
-    from .backends import get_backend
-    from .benches.traversal import bench_table4, resources_text, speedup_text, table4_markdown
-    from .kernels import Variant
+    from ..backends import get_backend
+    from ..benches.traversal import bench_table4, resources_text, speedup_text, table4_markdown
+    from ..device.kernels import Variant
     base = Variant(intersection=isect, block=_block_shape(block), short_stack=short_stack)
     names = [t for t in traversals.split(",") if t]
     for t in names:
@@ -582,8 +582,8 @@ def bench_memory_cmd(scenes: str = typer.Option("bunny,dragon", help="comma-sepa
                      md: Optional[Path] = typer.Option(None, help="append the table as markdown to this file")):
     """Memory placement (§3.1.1, lab step 01): textures vs global loads, constants in constant vs global
     memory, the ray in registers / shared memory / indexed arrays; time, registers, occupancy, error."""
-    from .backends import get_backend
-    from .benches.memory import PLACEMENTS, bench_memory, compiler_report, diff_text, memory_markdown
+    from ..backends import get_backend
+    from ..benches.memory import PLACEMENTS, bench_memory, compiler_report, diff_text, memory_markdown
     names = [n for n in placements.split(",") if n]
     unknown = [n for n in names if n not in PLACEMENTS]
     if unknown:
@@ -608,7 +608,7 @@ def bench_memory_cmd(scenes: str = typer.Option("bunny,dragon", help="comma-sepa
     console.print(table)
     report = compiler_report()
     if report:
-        from .benches.memory import compiler_report_markdown
+        from ..benches.memory import compiler_report_markdown
         console.print(compiler_report_markdown(report))
     if md:
         with open(md, "a") as f:
@@ -631,8 +631,8 @@ def bench_launch_cmd(scene: str = typer.Option("bunny", help="preset"),
                      md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
     """Block size (Fig. 4) with pixel vs Morton ray order, and registers/occupancy (Fig. 5): register caps
     and (CUDA) occupancy held down by unused shared memory. Every launch checked against the default's hits."""
-    from .backends import get_backend
-    from .benches.launch import (FIG4_BLOCKS, block_sweep, launch_markdown, occupancy_sweep, plot_fig4, plot_fig5,
+    from ..backends import get_backend
+    from ..benches.launch import (FIG4_BLOCKS, block_sweep, launch_markdown, occupancy_sweep, plot_fig4, plot_fig5,
                                  register_sweep)
     shapes = _blocks(blocks) if blocks else list(FIG4_BLOCKS)
     cap_list = _int_list(caps, "--caps")
@@ -678,8 +678,8 @@ def bench_paper_cmd(backend: Optional[str] = typer.Option(None, help="opencl, cu
                     force: bool = typer.Option(False, help="rerun sections finished by an earlier run")):
     """The paper's evaluation on the current device: Tables 2-5, Figs. 4-5 and §3.1.1's memory placement,
     as markdown + CSV + PNG plots in OUT/<backend>-<device>/ (sections finished before are kept)."""
-    from .backends import get_backend
-    from .benches.paper import SECTIONS, run_paper
+    from ..backends import get_backend
+    from ..benches.paper import SECTIONS, run_paper
     names = [s for s in sections.split(",") if s]
     unknown = [s for s in names if s not in SECTIONS]
     if unknown:

@@ -1,0 +1,120 @@
+"""Constants the kernels and the host share, read from the kernels' own headers: one source.
+
+The variant codes (``RT_TRAVERSAL_BVH``...), the ray-tree sentinels (``RT_NO_RAY``), the layout
+constants of the host-built structures (``BVH_LEAF_BITS``, ``PBVH_TRI_ROWS``...) and the packet widths
+(``RT_LANES``, ``RT_PACKET_WIDTH``: the defaults the headers list) are ``#define``s in
+``kernels/shared/*.h``. This module reads every object-like ``#define`` of :data:`HEADERS` whose value is
+a constant expression (numbers, other such names, arithmetic) once, on first use, so that a code
+changed in a header changes on the host too: no table to keep in sync by hand.
+
+    from rtlab.device.constants import kernel_constant
+    kernel_constant("RT_TRAVERSAL_BVH")      # 5
+
+Read from the reference kernels (``rtlab.paths.REFERENCE_KERNEL_DIR``), not a kernel tree swapped in
+for a submission: these headers hold no student code, and the host's meaning of a code must not
+depend on a student's copy. Imports nothing from rtlab but ``paths``, so every layer may use it.
+"""
+from __future__ import annotations
+
+import ast
+import operator
+import re
+from functools import lru_cache
+from pathlib import Path
+
+from ..errors import RtlabError
+from ..paths import REFERENCE_KERNEL_DIR
+
+# The headers whose #defines the host reads (kernels/shared/)
+HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh_packet.h",
+           "rt_lanes.h", "rt_whitted.h")
+
+_DIRECTIVE_RE = re.compile(r"^[ \t]*#[ \t]*(\w+)[ \t]*(.*?)[ \t]*$")
+_COMMENT_RE = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)
+_C_NUMBER_RE = re.compile(r"(?<![\w.])((?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?)[fFuUlL]*(?![\w.])")
+_OPERATORS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+              ast.LShift: operator.lshift, ast.RShift: operator.rshift, ast.BitOr: operator.or_,
+              ast.BitAnd: operator.and_, ast.USub: operator.neg, ast.UAdd: operator.pos, ast.Invert: operator.invert}
+
+
+def _evaluate(expression: str, known: dict[str, int | float]) -> int | float | None:
+    """The value of a C constant expression over numbers and ``known`` names, or None when it is
+    anything else (a qualifier, a call, a comparison...)."""
+    try:
+        tree = ast.parse(_C_NUMBER_RE.sub(r"\1", expression.strip()), mode="eval")
+    except SyntaxError:
+        return None
+
+    def value(node):
+        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
+            return node.value
+        if isinstance(node, ast.Name) and node.id in known:
+            return known[node.id]
+        if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
+            left, right = value(node.left), value(node.right)
+            if isinstance(node.op, ast.Div) and isinstance(left, int) and isinstance(right, int):
+                return int(left / right)                      # C's integer division truncates
+            return _OPERATORS[type(node.op)](left, right)
+        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPERATORS:
+            return _OPERATORS[type(node.op)](value(node.operand))
+        raise ValueError(ast.dump(node))
+
+    try:
+        return value(tree.body)
+    except (ValueError, TypeError, ZeroDivisionError):
+        return None
+
+
+def parse_defines(text: str, known: dict[str, int | float] | None = None) -> dict[str, int | float]:
+    """Object-like ``#define NAME value`` lines of a C source whose value is a constant expression:
+    those outside any conditional but an include guard or their own ``#ifndef NAME`` default (one
+    under ``#if`` is a variant's, not the constant's). A later one may use an earlier one."""
+    out: dict[str, int | float] = dict(known or {})
+    lines = _COMMENT_RE.sub(lambda m: "\n" * m.group(0).count("\n") or " ", text).splitlines()
+    open_ifs: list[str | None] = []     # per open conditional: the name of an #ifndef, else None
+    for line in lines:
+        m = _DIRECTIVE_RE.match(line)
+        if not m:
+            continue
+        word, rest = m.groups()
+        if word in ("if", "ifdef"):
+            open_ifs.append(None)
+        elif word == "ifndef":
+            open_ifs.append(rest.split()[0] if rest else None)
+        elif word in ("elif", "else") and open_ifs:
+            open_ifs[-1] = None
+        elif word == "endif" and open_ifs:
+            open_ifs.pop()
+        elif word == "define":
+            name, _, body = rest.partition(" ")
+            if not re.fullmatch(r"[A-Za-z_]\w*", name) or name in out:
+                continue                     # a function-like macro, or defined already
+            guards = [g for g in open_ifs if g != name]
+            if any(g is None or not g.endswith("_H") for g in guards):
+                continue
+            v = _evaluate(body, out)
+            if v is not None:
+                out[name] = v
+    return out
+
+
+@lru_cache(maxsize=1)
+def kernel_constants(shared_dir: Path = REFERENCE_KERNEL_DIR / "shared") -> dict[str, int | float]:
+    """Every constant #define of :data:`HEADERS`, by name."""
+    known: dict[str, int | float] = {}
+    for header in HEADERS:
+        path = Path(shared_dir) / header
+        try:
+            text = path.read_text()
+        except OSError as e:
+            raise RtlabError(f"cannot read {path} ({e.strerror}): rtlab reads the kernels' constants from it") from None
+        known = parse_defines(text, known)
+    return known
+
+
+def kernel_constant(name: str) -> int | float:
+    """The value of ``#define name`` in the kernels' headers (a RtlabError naming the headers if none)."""
+    table = kernel_constants()
+    if name not in table:
+        raise RtlabError(f"no constant #define {name} in kernels/shared/{{{','.join(HEADERS)}}}")
+    return table[name]
