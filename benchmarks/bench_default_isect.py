@@ -56,11 +56,11 @@ def cube_rays(n, seed=14):
     """A closed unit cube, rotated (corners rounded to float32), and rays from random points inside
     it aimed at its vertices (a third) and at points k/8 along its edges, d = p - o in float32:
     every ray must hit (the issue's measure: Moller let 3.6 % through)."""
-    from rtlab.robustness import _box, _scene
+    from rtlab.robustness import box_mesh, case_scene
     rng = np.random.default_rng(seed)
-    v, f = _box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))
+    v, f = box_mesh((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))
     rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    scene = _scene("cube", v @ rotation.T + (0.3, 0.2, 0.1), f)
+    scene = case_scene("cube", v @ rotation.T + (0.3, 0.2, 0.1), f)
     corners = scene.vertices.astype(np.float64)[scene.faces]
     pick = rng.integers(0, len(corners), n)
     e = rng.integers(0, 3, n)

@@ -8,7 +8,7 @@ Everything drawn is computed from what rtlab itself uses: the cells are decoded 
 kernels traverse (rtlab.accel.kdtree's helpers, each child's box cut from its parent's at the
 split), the pixel's rays are traced on a backend (primary hits with rtlab.trace; shadow,
 reflection and refraction rays through the shading kernels' own spawn functions,
-rtlab.device.whitted.probe_*, where the scene has lights and such materials), and the visited leaves come
+rtlab.device.probes, where the scene has lights and such materials), and the visited leaves come
 from walking the tree along the primary ray in float64 on the host.
 
 Headless (tests, notebooks, ``--screenshot``): VTK draws off-screen through EGL (Debian
@@ -288,7 +288,7 @@ def expand_shadow(scene, backend, seg: RaySegment, index: int, depth: int) -> li
     if not seg.hit or not scene.lights or seg.kind == "shadow":
         return []
     from .device.tracing import TraceResult
-    from .device.whitted import probe_shadow_rays
+    from .device.probes import probe_shadow_rays
     hits = TraceResult(np.array([seg.t], np.float32), np.array([seg.tri], np.int32),
                        np.array([seg.u], np.float32), np.array([seg.v], np.float32), 0.0)
     p = seg.hit_point
@@ -307,7 +307,7 @@ def _expand_secondary(kind: str):
         if not seg.hit or seg.kind == "shadow":
             return []
         from .device.tracing import TraceResult
-        from .device.whitted import probe_secondary_rays
+        from .device.probes import probe_secondary_rays
         hits = TraceResult(np.array([seg.t], np.float32), np.array([seg.tri], np.int32),
                            np.array([seg.u], np.float32), np.array([seg.v], np.float32), 0.0)
         o, w, d, child = probe_secondary_rays(scene, backend, seg.direction[None].astype(np.float32), hits, kind)

@@ -69,9 +69,9 @@ def sphere_scene():
     """An icosphere of 1280 triangles filling much of a 48² view: Table 3's loop over its first
     1000 triangles hits on most pixels."""
     import trimesh
-    from rtlab.robustness import _scene
+    from rtlab.robustness import case_scene
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
-    scene = _scene("icosphere", mesh.vertices, mesh.faces)
+    scene = case_scene("icosphere", mesh.vertices, mesh.faces)
     scene.camera = Camera((0.4, 0.8, 2.6), (0.0, 0.0, 0.0), width=48, height=48)
     return scene
 
@@ -184,10 +184,10 @@ def test_render_with_each_test_matches_reference(backend, isect, default_scene):
 def test_watertight_closes_cracks_of_frozen_rays(backend, case, fp64):
     """Rays that pass next to a shared vertex: the float64 reference and the watertight test hit a
     triangle of the fan, with or without the double-precision fallback."""
-    from rtlab.robustness import Case, _scene, trace_case
+    from rtlab.robustness import Case, case_scene, trace_case
     corners, o, d = BAD_CASES[case]
     faces = np.arange(len(corners)).reshape(-1, 3)
-    scene = _scene(f"bad_case_{case}", corners, faces)
+    scene = case_scene(f"bad_case_{case}", corners, faces)
     c = Case(0, "frozen", scene, o[None], d[None], ("leaks",))
     assert c.reference().tri[0] >= 0
     defines = {} if fp64 else {"RT_HAS_FP64": 0}     # the default shares the suite's program

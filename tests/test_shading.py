@@ -20,8 +20,8 @@ from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import apply_materials, glass_scene, mtl_materials, reachable_bounces, shading_features
 from rtlab.scene.model import Camera, Light, Material, Scene
 from rtlab.device.tracing import trace
-from rtlab.device.whitted import (NO_RAY, probe_refraction, probe_secondary_rays, probe_shadow_rays, render_whitted,
-                           shading_defines)
+from rtlab.device.probes import probe_refraction, probe_secondary_rays, probe_shadow_rays
+from rtlab.device.whitted import NO_RAY, render_whitted, shading_defines
 
 from .conftest import require_scene_file
 

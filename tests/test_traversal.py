@@ -543,8 +543,8 @@ def test_ties_go_to_the_lowest_triangle_id_in_every_traversal(backend, duplicate
 
 
 def _cube_grid(cubes, lo):
-    from rtlab.robustness import _box, _merge
-    v, f = _merge([_box((lo + i, lo + j, lo + k), (lo + i + 1, lo + j + 1, lo + k + 1))
+    from rtlab.robustness import box_mesh, merge_meshes
+    v, f = merge_meshes([box_mesh((lo + i, lo + j, lo + k), (lo + i + 1, lo + j + 1, lo + k + 1))
                    for i in range(cubes) for j in range(cubes) for k in range(cubes)])
     return _scene_from_mesh("cubes", v, f)
 

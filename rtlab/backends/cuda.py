@@ -5,7 +5,6 @@ pycuda is imported only here, lazily, so every other part of rtlab works without
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 import numpy as np

@@ -17,9 +17,7 @@ CPU-second is throughput per core, whatever the load.
 """
 from __future__ import annotations
 
-import datetime
 import os
-import platform
 import time
 from dataclasses import dataclass, field
 
@@ -27,6 +25,7 @@ import numpy as np
 
 from ..errors import RtlabError
 from ..device.kernels import Variant
+from .tables import Table, report_markdown
 
 EMBREE_HINT = "Embree is not installed: `pip install 'rtlab[bench]'` (or `pip install embreex`)"
 DEFAULT_VIEWS = "bunny/fill,sponza/inside,default"
@@ -175,17 +174,16 @@ def table_rows(rows: list[CpuRow]) -> list[tuple[str, ...]]:
             for r in rows]
 
 
+def cpu_tables(rows: list[CpuRow], title: str = "rtlab on the CPU against Embree (one thread), same rays") -> list[Table]:
+    return [Table(COLUMNS, table_rows(rows), title)]
+
+
 def cpu_markdown(rows: list[CpuRow], command: str, rounds: int) -> str:
-    date = datetime.date.today().isoformat()
-    devices = sorted({r.device for r in rows})
-    out = ["### rtlab on the CPU against Embree, same rays, same run", "", f"Command: `{command}`  ",
-           f"Date: {date}; host: {platform.node()} ({os.cpu_count()} cores); rtlab: OpenCL {', '.join(devices)} "
-           f"({', '.join(sorted({r.variant for r in rows}))}); Embree: {embree_version()}, one thread; medians of "
-           f"{rounds} alternating rounds; ratio = rtlab / Embree in Mrays/s (wall clock: rtlab's kernel time with "
-           "all its threads, Embree's one thread); per core = the same in Mrays per CPU-second (PoCL's threads' CPU "
-           "time, Embree's thread's), which the machine's load does not change; errors: mismatches (ties) among "
-           "the rays checked against the float64 reference, largest relative t error; load: 1-minute load average",
-           "",
-           "| " + " | ".join(COLUMNS) + " |", "|" + "|".join("---" for _ in COLUMNS) + "|"]
-    out += ["| " + " | ".join(cells) + " |" for cells in table_rows(rows)]
-    return "\n".join(out) + "\n"
+    intro = (f"{os.cpu_count()} cores; rtlab: OpenCL ({', '.join(sorted({r.variant for r in rows}))}); Embree: "
+             f"{embree_version()}, one thread; medians of {rounds} alternating rounds; ratio = rtlab / Embree in "
+             "Mrays/s (wall clock: rtlab's kernel time with all its threads, Embree's one thread); per core = the "
+             "same in Mrays per CPU-second (PoCL's threads' CPU time, Embree's thread's), which the machine's load "
+             "does not change; errors: mismatches (ties) among the rays checked against the float64 reference, "
+             "largest relative t error; load: 1-minute load average")
+    return report_markdown("rtlab on the CPU against Embree, same rays, same run", command,
+                           [r.device for r in rows], cpu_tables(rows), intro)

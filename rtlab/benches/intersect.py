@@ -6,7 +6,8 @@ structure. Lab step 02 (kernels/cuda/02_intersect.cu, kernels/opencl/02_intersec
 kernel; RT_ISECT picks the test. Beside each time: the compiler's registers (the paper's
 "Reg. usage" row; offline from nvcc for CUDA), the bytes each test reads per triangle, and the
 error against the float64 reference over the same 1000 triangles. The in-render effect is the full
-renderer (kd-tree, simple shading) with each test: Mrays/s and its error, via rtlab.benches.primary.bench_render.
+renderer (kd-tree, simple shading) with each test: Mrays/s and its error, via
+rtlab.benches.primary.bench_render.
 """
 from __future__ import annotations
 
@@ -17,13 +18,11 @@ import numpy as np
 from ..device.kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
 from ..device.layout import HIT_DTYPE
 from ..scene.model import Camera, Scene
+from .paper_figures import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS
+from .tables import Table, fmt, report_markdown
 
 INTERSECT_STEP = "02_intersect"
 TABLE3_TRIANGLES = 1000
-# The paper's Table 3 (GeForce 8800 GTS, 1024x1024 rays, ms per launch) and its "Reg. usage" row
-PAPER_TABLE3_MS = {"bunny": {"moller": 515.3, "wald": 439.8, "plucker": 566.3},
-                   "sponza": {"moller": 515.3, "wald": 431.5, "plucker": 578.7}}
-PAPER_TABLE3_REGISTERS = {"moller": 12, "wald": 18, "plucker": 22}
 
 
 @dataclass
@@ -150,23 +149,28 @@ def bench_table3(scene: Scene, backend, isects, size: int, n_tris: int = TABLE3_
     return rows
 
 
+COLUMNS = ("scene", "test", "backend", "rays", "loop ms", "Mtests/s", "paper ms", "nvcc regs", "paper regs",
+           "B/tri read", "B/tri extra", "loop error", "render Mrays/s", "render error")
+
+
+def table_rows(rows: list[Table3Row]) -> list[tuple[str, ...]]:
+    """Cells under COLUMNS: the loop beside the paper's figures, then the test in the renderer."""
+    out = []
+    for r in rows:
+        rend = r.render
+        out.append((r.scene, r.isect, r.backend, f"{r.size}²", f"{r.median_ms:.2f}", f"{r.mtests:,.0f}",
+                    fmt(PAPER_TABLE3_MS.get(r.scene, {}).get(r.isect), ""), fmt(r.nvcc and r.nvcc["registers"], "d"),
+                    fmt(PAPER_TABLE3_REGISTERS.get(r.isect), "d"), str(r.bytes_read), str(r.bytes_precomputed),
+                    r.error_text(), f"{rend.mrays:,.1f}" if rend else "-", rend.error_text() if rend else "-"))
+    return out
+
+
+def table3_tables(rows: list[Table3Row]) -> list[Table]:
+    n_tris = rows[0].n_tris if rows else TABLE3_TRIANGLES
+    return [Table(COLUMNS, table_rows(rows), f"Table 3: first {n_tris} triangles")]
+
+
 def table3_markdown(rows: list[Table3Row], command: str) -> str:
     """Markdown for docs/benchmarks.md: the command, then Table 3 with the in-render columns."""
-    import datetime
-    import platform
-    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
-    out = [f"### Table 3: triangle tests, first {rows[0].n_tris if rows else TABLE3_TRIANGLES} triangles", "",
-           f"Command: `{command}`  ", f"Date: {datetime.date.today().isoformat()}; host: {platform.node()}; "
-           f"devices: {'; '.join(devices)}", "",
-           "| scene | test | backend | rays | loop ms | Mtests/s | paper ms | nvcc regs | paper regs | B/tri read | "
-           "B/tri extra | loop error | render Mrays/s | render error |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---|"]
-    for r in rows:
-        paper = PAPER_TABLE3_MS.get(r.scene, {}).get(r.isect)
-        regs = r.nvcc["registers"] if r.nvcc else "-"
-        rend = r.render
-        out.append(f"| {r.scene} | {r.isect} | {r.backend} | {r.size}² | {r.median_ms:.2f} | {r.mtests:,.0f} | "
-                   f"{paper if paper else '-'} | {regs} | {PAPER_TABLE3_REGISTERS.get(r.isect, '-')} | "
-                   f"{r.bytes_read} | {r.bytes_precomputed} | {r.error_text()} | "
-                   f"{f'{rend.mrays:,.1f}' if rend else '-'} | {rend.error_text() if rend else '-'} |")
-    return "\n".join(out) + "\n"
+    return report_markdown(f"Table 3: triangle tests, first {rows[0].n_tris if rows else TABLE3_TRIANGLES} triangles",
+                           command, [f"{r.backend}: {r.device}" for r in rows], table3_tables(rows))

@@ -16,23 +16,20 @@ Every row carries the error column: hits and pixels that differ from the default
 """
 from __future__ import annotations
 
-import datetime
 import math
-import platform
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..backends.occupancy import SM90, cuda_occupancy
 from ..device.kernels import Variant, build_defines, build_options, kernel_source, load_program, primary_step
 from ..device.layout import HIT_DTYPE
-from ..backends.occupancy import SM90, cuda_occupancy
 from ..scene.model import Scene
+from .paper_figures import PAPER_FIG4_BEST, PAPER_FIG4_GOOD
+from .tables import Table, fmt, report_markdown
 
 FIG4_BLOCKS = ((1, 32), (2, 32), (4, 32), (8, 32), (16, 32), (32, 32), (8, 8), (16, 16), (14, 32), (22, 20),
                (32, 1), (32, 2), (32, 4), (32, 8), (64, 2), (128, 1))
-PAPER_FIG4_BEST = ((2, 32), (4, 32))           # §4.1: best; 14x32 and 22x20 "perform well"
-PAPER_FIG4_GOOD = ((14, 32), (22, 20))
 FIG5_TRAVERSALS = ("stack", "restart", "shortstack", "ropes")
 FIG5_CAPS = (0, 64, 48, 40, 32, 24)            # 0: no cap; ptxas goes no lower than 24 on sm_90
 OCCUPANCY_BLOCKS = (16, 12, 8, 6, 4, 3, 2, 1)  # resident blocks a multiprocessor (128-thread blocks)
@@ -262,10 +259,6 @@ def occupancy_sweep(scene: Scene, backend, traversals=("stack",), blocks_per_sm=
     return rows
 
 
-def _f(v, spec, missing="-"):
-    return missing if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
-
-
 def diff_text(r: LaunchRow) -> str:
     d = r.diff
     if not d:
@@ -279,42 +272,51 @@ def _error_text(e: dict) -> str:
     return f"{e['mismatches']} mism., {e['ties']} ties, max rel dt {e['t_rel_err_max']:.1e}"
 
 
-def launch_markdown(rows: list[LaunchRow], command: str) -> str:
-    date = datetime.date.today().isoformat()
-    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
-    out = ["### Launch shape and occupancy (§4.1, Figs. 4 and 5) and ray order", "", f"Command: `{command}`  ",
-           f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", "",
-           "Times are of render_primary with its hit records written (16 bytes a pixel more than Table 4's "
-           "launches), so every row can be compared hit for hit with the default launch.", ""]
+FIG4_COLUMNS = ("scene", "backend", "block", "threads", "order", "median ms", "Mrays/s", "vs 32x4 rows", "regs",
+                "occupancy", "resources from", "differs", "error vs float64", "note")
+FIG5_COLUMNS = ("scene", "backend", "traversal", "cap", "shared pad B", "median ms", "fps", "Mrays/s", "regs",
+                "spills B", "occupancy", "resources from", "differs", "error vs float64", "note")
+
+
+def fig4_rows(rows: list[LaunchRow]) -> list[tuple[str, ...]]:
     blocks = [r for r in rows if r.kind == "block"]
-    if blocks:
-        out += ["Fig. 4: block shapes, x by y threads (the paper: 2x32 and 4x32 best, 14x32 and 22x20 good). "
-                "Error column: hits/pixels differing from the default launch (must be 0).", "",
-                "| scene | backend | block | threads | order | median ms | Mrays/s | vs 32x4 rows | regs | occupancy | "
-                "resources from | differs | error vs float64 | note |",
-                "|---|---|---|---:|---|---:|---:|---:|---:|---:|---|---|---|---|"]
-        ref = {(r.scene, r.backend): r.median_ms for r in blocks if r.block == (32, 4) and r.ray_order == "rows"}
-        for r in blocks:
-            g = ref.get((r.scene, r.backend))
-            mark = " (paper best)" if r.block in PAPER_FIG4_BEST else (" (paper good)" if r.block in PAPER_FIG4_GOOD else "")
-            out.append(f"| {r.scene} | {r.backend} | {r.block[0]}x{r.block[1]}{mark} | {r.block[0] * r.block[1]} | "
-                       f"{r.ray_order} | {_f(r.median_ms, '.3f')} | {_f(r.mrays, ',.1f')} | "
-                       f"{_f(g / r.median_ms if g else None, '.2f')} | {_f(r.registers, 'd')} | {_f(r.occupancy, '.0%')} | "
-                       f"{r.resources_from} | {diff_text(r)} | {_error_text(r.error)} | {r.note} |")
-        out.append("")
-    caps = [r for r in rows if r.kind in ("regcap", "occupancy")]
-    if caps:
-        out += ["Fig. 5: each traversal under register caps, and (CUDA) with occupancy held down by unused "
-                "dynamic shared memory. Error column: hits/pixels differing from the same traversal uncapped.", "",
-                "| scene | backend | traversal | cap | shared pad B | median ms | fps | Mrays/s | regs | spills B | "
-                "occupancy | resources from | differs | error vs float64 | note |",
-                "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|"]
-        for r in caps:
-            out.append(f"| {r.scene} | {r.backend} | {r.traversal} | {r.cap or 'none'} | {r.shared_pad} | "
-                       f"{_f(r.median_ms, '.3f')} | {_f(r.fps, ',.1f')} | {_f(r.mrays, ',.1f')} | {_f(r.registers, 'd')} | "
-                       f"{_f(r.spill_bytes, 'd')} | {_f(r.occupancy, '.0%')} | {r.resources_from} | {diff_text(r)} | "
-                       f"{_error_text(r.error)} | {r.note} |")
-    return "\n".join(out) + "\n"
+    ref = {(r.scene, r.backend): r.median_ms for r in blocks if r.block == (32, 4) and r.ray_order == "rows"}
+    out = []
+    for r in blocks:
+        g = ref.get((r.scene, r.backend))
+        mark = " (paper best)" if r.block in PAPER_FIG4_BEST else (" (paper good)" if r.block in PAPER_FIG4_GOOD else "")
+        out.append((r.scene, r.backend, f"{r.block[0]}x{r.block[1]}{mark}", str(r.block[0] * r.block[1]), r.ray_order,
+                    fmt(r.median_ms, ".3f"), fmt(r.mrays, ",.1f"), fmt(g / r.median_ms if g else None, ".2f"),
+                    fmt(r.registers, "d"), fmt(r.occupancy, ".0%"), r.resources_from, diff_text(r),
+                    _error_text(r.error), r.note))
+    return out
+
+
+def fig5_rows(rows: list[LaunchRow]) -> list[tuple[str, ...]]:
+    return [(r.scene, r.backend, r.traversal, str(r.cap or "none"), str(r.shared_pad), fmt(r.median_ms, ".3f"),
+             fmt(r.fps, ",.1f"), fmt(r.mrays, ",.1f"), fmt(r.registers, "d"), fmt(r.spill_bytes, "d"),
+             fmt(r.occupancy, ".0%"), r.resources_from, diff_text(r), _error_text(r.error), r.note)
+            for r in rows if r.kind in ("regcap", "occupancy")]
+
+
+def launch_tables(rows: list[LaunchRow]) -> list[Table]:
+    """Fig. 4 (block shapes and ray order) and Fig. 5 (register caps, occupancy), those with rows."""
+    tables = [Table(FIG4_COLUMNS, fig4_rows(rows), note="Fig. 4: block shapes, x by y threads (the paper: 2x32 and "
+                    "4x32 best, 14x32 and 22x20 good). Error column: hits/pixels differing from the default launch "
+                    "(must be 0)."),
+              Table(FIG5_COLUMNS, fig5_rows(rows), note="Fig. 5: each traversal under register caps, and (CUDA) with "
+                    "occupancy held down by unused dynamic shared memory. Error column: hits/pixels differing from "
+                    "the same traversal uncapped.")]
+    return [t for t in tables if t.rows]
+
+
+INTRO = ("Times are of render_primary with its hit records written (16 bytes a pixel more than Table 4's launches), "
+         "so every row can be compared hit for hit with the default launch.")
+
+
+def launch_markdown(rows: list[LaunchRow], command: str) -> str:
+    return report_markdown("Launch shape and occupancy (§4.1, Figs. 4 and 5) and ray order", command,
+                           [f"{r.backend}: {r.device}" for r in rows], launch_tables(rows), INTRO)
 
 
 def plot_fig4(rows: list[LaunchRow], path) -> None:

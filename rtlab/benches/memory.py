@@ -17,16 +17,14 @@ which is what mattered on 2008's register-starved GPUs (§3.1.1).
 """
 from __future__ import annotations
 
-import datetime
-import platform
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from .primary import BenchRow, bench_render
 from ..device.kernels import Variant, build_defines, build_options, kernel_source, primary_step
 from ..scene.model import Scene
+from .primary import BenchRow, bench_render
+from .tables import Table, fmt, report_markdown
 
 # name -> (variant fields beyond the base, what it moves)
 PLACEMENTS = {
@@ -153,53 +151,56 @@ def ptx_memory_ops(path, defines: dict, kernel: str = "render_primary", arch: st
             for op in ("ld.local", "st.local", "ld.shared", "st.shared")}
 
 
-def _f(v, spec, missing="-"):
-    return missing if v is None else format(v, spec)
-
-
 def diff_text(r: MemoryRow) -> str:
     d = r.diff
     return "0 (identical)" if d and not any(d.values()) else f"{d['tri']} ids, {d['t_bits']} t, {d['pixels']} px"
 
 
-def memory_markdown(rows: list[MemoryRow], command: str, report: list[dict] | None = None) -> str:
-    date = datetime.date.today().isoformat()
-    devices = sorted({f"{r.bench.backend}: {r.bench.device}" for r in rows})
-    out = ["### Memory placement (§3.1.1, lab step 01)", "", f"Command: `{command}`  ",
-           f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", "",
-           "| scene | backend | placement | median ms | Mrays/s | vs global | regs | occupancy | "
-           "nvcc regs / stack B / spills B / shared B / occ. | differs from global | error vs float64 reference | moves |",
-           "|---|---|---|---:|---:|---:|---:|---:|---|---|---|---|"]
-    base_ms = {}
-    for r in rows:
-        if r.placement == "global":
-            base_ms[(r.bench.scene, r.bench.backend)] = r.bench.median_ms
+COLUMNS = ("scene", "backend", "placement", "median ms", "Mrays/s", "vs global", "regs", "occupancy",
+           "nvcc regs / stack B / spills B / shared B / occ.", "differs from global", "error vs float64 reference",
+           "moves")
+
+
+def table_rows(rows: list[MemoryRow]) -> list[tuple[str, ...]]:
+    """Cells under COLUMNS; speed against the global variant of the same scene and backend."""
+    base_ms = {(r.bench.scene, r.bench.backend): r.bench.median_ms for r in rows if r.placement == "global"}
+    out = []
     for r in rows:
         b, n = r.bench, r.nvcc
         g = base_ms.get((b.scene, b.backend))
-        speed = f"{g / b.median_ms:.2f}×" if g else "-"
         nv = (f"{n['registers']} / {n['local_bytes']} / {n['spill_bytes']} / {n['shared_bytes']} / "
               f"{n['occupancy']:.0%}" if n else "-")
         err = b.error_text() + (" (= global: same hits)" if r.error_from == "global" else "")
-        out.append(f"| {b.scene} | {b.backend} | {r.placement} | {b.median_ms:.3f} | {b.mrays:,.1f} | {speed} | "
-                   f"{_f(b.registers or None, 'd')} | {_f(b.occupancy, '.0%')} | {nv} | {diff_text(r)} | {err} | "
-                   f"{r.description} |")
-    if report:
-        out += ["", compiler_report_markdown(report)]
-    return "\n".join(out) + "\n"
+        out.append((b.scene, b.backend, r.placement, f"{b.median_ms:.3f}", f"{b.mrays:,.1f}",
+                    f"{g / b.median_ms:.2f}×" if g else "-", fmt(b.registers or None, "d"), fmt(b.occupancy, ".0%"),
+                    nv, diff_text(r), err, r.description))
+    return out
 
 
-def compiler_report_markdown(report: list[dict]) -> str:
-    out = ["nvcc's report for `render_primary` of lab step 01 (sm_90, block 32x4), per ray placement and "
-           "register cap (-maxrregcount; ptxas will not go below 24); uncapped rows also count the PTX's local and "
-           "shared loads/stores (the kd stack is 3+3 local ones; an indexed ray adds local ones, a shared ray "
-           "turns its reads into shared loads):", "",
-           "| ray | cap | registers | stack (local) B | spill stores+loads B | shared B | occupancy | "
-           "PTX ld/st.local | PTX ld/st.shared |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+REPORT_COLUMNS = ("ray", "cap", "registers", "stack (local) B", "spill stores+loads B", "shared B", "occupancy",
+                  "PTX ld/st.local", "PTX ld/st.shared")
+
+
+def report_table(report: list[dict]) -> Table:
+    """:func:`compiler_report` as a table."""
+    cells = []
     for r in report:
         loc = f"{r['ld_local']}/{r['st_local']}" if "ld_local" in r else "-"
         sh = f"{r['ld_shared']}/{r['st_shared']}" if "ld_shared" in r else "-"
-        out.append(f"| {r['ray']} | {r['cap'] or 'none'} | {r['registers']} | {r['local_bytes']} | {r['spill_bytes']} | "
-                   f"{r['shared_bytes']} | {r['occupancy']:.0%} | {loc} | {sh} |")
-    return "\n".join(out)
+        cells.append((r["ray"], str(r["cap"] or "none"), str(r["registers"]), str(r["local_bytes"]),
+                      str(r["spill_bytes"]), str(r["shared_bytes"]), f"{r['occupancy']:.0%}", loc, sh))
+    return Table(REPORT_COLUMNS, cells,
+                 note="nvcc's report for `render_primary` of lab step 01 (sm_90, block 32x4), per ray placement and "
+                      "register cap (-maxrregcount; ptxas will not go below 24); uncapped rows also count the PTX's "
+                      "local and shared loads/stores (the kd stack is 3+3 local ones; an indexed ray adds local ones, "
+                      "a shared ray turns its reads into shared loads):")
+
+
+def memory_tables(rows: list[MemoryRow], report: list[dict] | None = None) -> list[Table]:
+    """The placements; with nvcc, its report of the ray placements under register caps."""
+    return [Table(COLUMNS, table_rows(rows), "memory placement (§3.1.1)")] + ([report_table(report)] if report else [])
+
+
+def memory_markdown(rows: list[MemoryRow], command: str, report: list[dict] | None = None) -> str:
+    return report_markdown("Memory placement (§3.1.1, lab step 01)", command,
+                           [f"{r.bench.backend}: {r.bench.device}" for r in rows], memory_tables(rows, report))

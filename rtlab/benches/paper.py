@@ -22,15 +22,15 @@ import traceback
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from .paper_figures import PAPER_SIZE
+from .tables import Table, fmt
+
 SECTIONS = ("table2", "table3", "table4", "table5", "memory", "fig4", "fig5")
 PAPER_SCENES = ("bunny", "sponza", "kitchen", "dragon")
 SECTION_TITLES = {"table2": "Table 2: kd-tree statistics", "table3": "Table 3: triangle tests",
                   "table4": "Table 4: traversal variants", "table5": "Table 5: shadows and secondary rays",
                   "memory": "§3.1.1: memory placement", "fig4": "Fig. 4: block size and ray order",
                   "fig5": "Fig. 5: registers and occupancy"}
-# The paper's Table 2 (#triangles, #nodes, #non-empty leaves, refs per non-empty leaf, size)
-PAPER_TABLE2 = {"bunny": (69451, 379713, 120511, 2.72, "11MB"), "sponza": (66454, 292195, 124059, 2.63, "10MB"),
-                "kitchen": (103343, 362585, 146253, 2.63, "14MB"), "dragon": (871414, 1687237, 607852, 2.59, "103MB")}
 
 
 @dataclass
@@ -86,32 +86,22 @@ def _bench_row(section, b, paper=None, unit="fps", speedup=None, registers=None,
 # ---- sections --------------------------------------------------------------------------------
 
 def section_table2(ctx) -> SectionResult:
-    from ..accel.kdtree import kd_stats
     from ..device.scene import scene_kdtree
-    out = ["| scene | #triangles (paper) | #nodes (paper) | #neleaves (paper) | #links (paper) | size (paper) | "
-           "depth | SAH cost | build s |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for name in ctx.scenes:
-        scene = ctx.scene(name)
-        tree = scene_kdtree(scene)
-        s = kd_stats(tree, scene.n_triangles)
-        p = PAPER_TABLE2.get(name, ("-",) * 5)
-        fmt = lambda v: f"{v:,}" if isinstance(v, int) else str(v)
-        out.append(f"| {name} | {s['triangles']:,} ({fmt(p[0])}) | {s['nodes']:,} ({fmt(p[1])}) | "
-                   f"{s['nonempty_leaves']:,} ({fmt(p[2])}) | {s['refs_per_nonempty_leaf']:.2f} ({p[3]}) | "
-                   f"{s['size_bytes'] / 2**20:.1f} MB ({p[4]}) | {s['depth']} | {s['sah_cost']:.2f} | "
-                   f"{getattr(tree, 'build_seconds', float('nan')):.2f} |")
-    return SectionResult("table2", [], "\n".join(out) + "\n")
+    from .build import table2
+    entries = [(name, scene_kdtree(ctx.scene(name)), ctx.scene(name).n_triangles) for name in ctx.scenes]
+    return SectionResult("table2", [], table2(entries).markdown())
 
 
 def section_table3(ctx) -> SectionResult:
-    from .intersect import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS, bench_table3, table3_markdown
+    from .intersect import bench_table3, table3_markdown
+    from .paper_figures import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS
     rows, paper_rows = [], []
     for name in [s for s in ctx.scenes if s in ("bunny", "sponza")] or ctx.scenes[:1]:
         ctx.progress(f"Table 3: {name}")
         rows += bench_table3(ctx.scene(name), ctx.backend, ["moller", "wald", "plucker", "watertight"], ctx.size,
                              repeats=ctx.repeats, render_size=ctx.size, render_repeats=ctx.repeats, check=ctx.check)
     for r in rows:
-        paper = PAPER_TABLE3_MS.get(r.scene, {}).get(r.isect) if r.size == 1024 else None
+        paper = PAPER_TABLE3_MS.get(r.scene, {}).get(r.isect) if r.size == PAPER_SIZE else None
         paper_rows.append(PaperRow("table3-loop", r.scene, f"{r.isect} (1000-triangle loop)", r.backend, r.device,
                                    r.size, r.median_ms, r.mtests, 1e3 / r.median_ms, paper, "ms" if paper else "",
                                    paper / r.median_ms if paper else None,
@@ -124,7 +114,7 @@ def section_table3(ctx) -> SectionResult:
 
 
 def section_table4(ctx) -> SectionResult:
-    from .traversal import PAPER_TABLE4_FPS, TABLE4_VARIANTS, bench_table4, table4_markdown
+    from .traversal import TABLE4_VARIANTS, bench_table4, table4_markdown
     rows = []
     for name in ctx.scenes:
         rows += bench_table4(ctx.scene(name), ctx.backend, TABLE4_VARIANTS, repeats=ctx.repeats, check=ctx.check,
@@ -134,7 +124,7 @@ def section_table4(ctx) -> SectionResult:
         n = r.nvcc or {}
         regs = r.bench.registers or n.get("registers")
         occ = r.bench.occupancy if r.bench.occupancy is not None else n.get("occupancy")
-        paper_rows.append(_bench_row("table4", r.bench, r.paper_fps if r.bench.size == 1024 else None, "fps",
+        paper_rows.append(_bench_row("table4", r.bench, r.paper_fps if r.bench.size == PAPER_SIZE else None, "fps",
                                      r.speedup(), regs, occ))
     return SectionResult("table4", [asdict(p) for p in paper_rows], table4_markdown(rows, ctx.command))
 
@@ -156,7 +146,7 @@ def section_table5(ctx) -> SectionResult:
     for r in rows:
         regs = [k.get("registers") for n, k in r.kernels.items() if n != "pack_frame" and k.get("registers")]
         occs = [k.get("occupancy") for n, k in r.kernels.items() if n != "pack_frame" and k.get("occupancy") is not None]
-        paper = r.paper_fps if r.size == 1024 else None
+        paper = r.paper_fps if r.size == PAPER_SIZE else None
         mrays = r.rays / (r.median_ms * 1e-3) / 1e6 if r.median_ms else math.nan
         paper_rows.append(PaperRow(f"table5-{r.table}", r.scene, r.mode, r.backend, r.device, r.size, r.median_ms,
                                    mrays, r.fps, paper, "fps" if paper else "", r.fps / paper if paper else None,
@@ -305,27 +295,17 @@ def all_rows(results: dict) -> list[PaperRow]:
     return [PaperRow(**{k: v for k, v in r.items() if k in names}) for res in results.values() for r in res.rows]
 
 
-def _f(v, spec, missing="-"):
-    if isinstance(v, str):
-        return v
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return missing
-    if isinstance(v, float) and math.isinf(v):
-        return "inf" if v > 0 else "-inf"
-    return format(v, spec)
+SUMMARY_COLUMNS = ("section", "scene", "variant", "ms", "Mrays/s", "fps", "paper", "speed-up", "regs", "occ.",
+                   "mism.", "ties", "max rel dt", "PSNR", "differs from base")
 
 
-def summary_markdown(rows: list[PaperRow]) -> list[str]:
-    out = ["| section | scene | variant | ms | Mrays/s | fps | paper | speed-up | regs | occ. | mism. | ties | "
-           "max rel dt | PSNR | differs from base |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        paper = f"{r.paper} {r.paper_unit}" if r.paper else "-"
-        out.append(f"| {r.section} | {r.scene} | {r.variant} | {_f(r.median_ms, '.3f')} | {_f(r.mrays, ',.1f')} | "
-                   f"{_f(r.fps, ',.1f')} | {paper} | {_f(r.speedup, ',.1f')}{'×' if r.speedup else ''} | "
-                   f"{_f(r.registers, 'd')} | {_f(r.occupancy, '.0%')} | {_f(r.mismatches, 'd')} | {_f(r.ties, 'd')} | "
-                   f"{_f(r.t_rel_err_max, '.1e')} | {_f(r.psnr, '.1f')} | {_f(r.differs, 'd')} |")
-    return out
+def summary_table(rows: list[PaperRow]) -> Table:
+    """Every timed variant of the run, one row each."""
+    return Table(SUMMARY_COLUMNS, [
+        (r.section, r.scene, r.variant, fmt(r.median_ms, ".3f"), fmt(r.mrays, ",.1f"), fmt(r.fps, ",.1f"),
+         f"{r.paper} {r.paper_unit}" if r.paper else "-", fmt(r.speedup, ",.1f") + ("×" if r.speedup else ""),
+         fmt(r.registers, "d"), fmt(r.occupancy, ".0%"), fmt(r.mismatches, "d"), fmt(r.ties, "d"),
+         fmt(r.t_rel_err_max, ".1e"), fmt(r.psnr, ".1f"), fmt(r.differs, "d")) for r in rows])
 
 
 def _with_saved(d: Path, results: dict) -> dict:
@@ -357,10 +337,9 @@ def write_outputs(d: Path, backend, results: dict, command: str, size: int) -> N
           "same unit. Errors are against the float64 reference (rtlab.reference): triangle-id mismatches, ties "
           "(rays float32 cannot decide), largest relative |Δt|, PSNR of the image; 'differs from base' counts "
           "hits/pixels that changed against the section's base variant (0 for placements and launch shapes).", "",
-          "| section | status | seconds |", "|---|---|---:|"]
-    for name, res in results.items():
-        md.append(f"| {SECTION_TITLES.get(name, name)} | {res.status} | {res.seconds:.0f} |")
-    md += ["", "## Every timed variant", "", *summary_markdown(rows), "", "![error against run time](error_vs_time.png)", ""]
+          Table(("section", "status", "seconds"), [(SECTION_TITLES.get(name, name), res.status, f"{res.seconds:.0f}")
+                                                   for name, res in results.items()]).markdown(),
+          "## Every timed variant", "", summary_table(rows).markdown(), "![error against run time](error_vs_time.png)", ""]
     for name, res in results.items():
         md += [f"## {SECTION_TITLES.get(name, name)}", "", f"Status: {res.status}", ""]
         if res.markdown:

@@ -1,18 +1,18 @@
-"""Benchmarks that print figures: device time (median of many launches after warm-up), Mrays/s, the
-compiler's resources, and the error against the float64 reference beside every time."""
+"""Primary rays with simple shading (the paper's Table 4 setting, ``rtlab bench primary``): device time
+(median of many launches after warm-up), Mrays/s, the compiler's resources, and the error against
+the float64 reference beside every time. :func:`bench_render` is the timed render every other bench
+of the renderer builds on."""
 from __future__ import annotations
 
-import datetime
-import platform
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..device.kernels import Variant
 from ..scene.model import Scene
+from .paper_figures import PAPER_SIZE, PAPER_TABLE4_FPS
+from .tables import Table, fmt, report_markdown
 
-# The paper's Table 4, stack single-ray column (fps at 1024x1024 on a GeForce 8800 GTS)
-PAPER_STACK_FPS = {"bunny": 43.2, "sponza": 40.5, "kitchen": 39.6, "dragon": 30.4}
 
 
 @dataclass
@@ -58,16 +58,25 @@ def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, war
     return row
 
 
-def rows_markdown(rows: list[BenchRow], title: str, command: str) -> str:
-    """A markdown block for docs/benchmarks.md: command, device, date, then the table."""
-    date = datetime.date.today().isoformat()
-    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
-    out = [f"### {title}", "", f"Command: `{command}`  ", f"Date: {date}; host: {platform.node()}; "
-           f"devices: {'; '.join(devices)}", "",
-           "| scene | view | backend | variant | size | median ms | Mrays/s | fps | regs | occupancy | error vs float64 reference |",
-           "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|"]
+COLUMNS = ("scene", "view", "backend", "device", "variant", "size", "median ms", "Mrays/s", "fps", "paper fps",
+           "regs", "occupancy", "error vs float64 reference")
+
+
+def table_rows(rows: list[BenchRow]) -> list[tuple[str, ...]]:
+    """Cells under COLUMNS; the paper's fps (Table 4, stack) at its size, 1024², only."""
+    out = []
     for r in rows:
-        occ = f"{r.occupancy:.0%}" if r.occupancy is not None else "-"
-        out.append(f"| {r.scene} | {r.view} | {r.backend} | {r.variant} | {r.size}² | {r.median_ms:.3f} | "
-                   f"{r.mrays:,.0f} | {r.fps:,.0f} | {r.registers or '-'} | {occ} | {r.error_text()} |")
-    return "\n".join(out) + "\n"
+        paper = PAPER_TABLE4_FPS["stack"].get(r.scene) if r.size == PAPER_SIZE else None
+        out.append((r.scene, r.view, r.backend, r.device, r.variant, f"{r.size}²", f"{r.median_ms:.3f}",
+                    f"{r.mrays:,.0f}", f"{r.fps:,.0f}", fmt(paper, ""), str(r.registers or "-"),
+                    fmt(r.occupancy, ".0%"), r.error_text()))
+    return out
+
+
+def primary_tables(rows: list[BenchRow], title: str) -> list[Table]:
+    return [Table(COLUMNS, table_rows(rows), title)]
+
+
+def primary_markdown(rows: list[BenchRow], title: str, command: str) -> str:
+    """A markdown block for docs/benchmarks.md: command, device, date, then the table."""
+    return report_markdown(title, command, [f"{r.backend}: {r.device}" for r in rows], primary_tables(rows, title))

@@ -13,9 +13,7 @@ Ray kinds (the README's definitions):
 """
 from __future__ import annotations
 
-import datetime
 import json
-import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +21,7 @@ import numpy as np
 
 from ..device.kernels import Variant
 from ..scene.model import Scene
+from .tables import Table, report_markdown
 
 RAY_KINDS = ("primary", "diffuse")
 PEER_FIGURES_FILE = Path(__file__).with_name("peer_figures.json")
@@ -191,11 +190,10 @@ def table_rows(rows: list[RaysRow]) -> list[tuple[str, ...]]:
     return out
 
 
+def rays_tables(rows: list[RaysRow]) -> list[Table]:
+    return [Table(COLUMNS, table_rows(rows), "rays through rtlab.trace")]
+
+
 def rays_markdown(rows: list[RaysRow], command: str) -> str:
-    date = datetime.date.today().isoformat()
-    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
-    out = ["### Rays through the trace API on the benchmark views", "", f"Command: `{command}`  ",
-           f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", "",
-           "| " + " | ".join(COLUMNS) + " |", "|" + "|".join("---" for _ in COLUMNS) + "|"]
-    out += ["| " + " | ".join(cells) + " |" for cells in table_rows(rows)]
-    return "\n".join(out) + "\n"
+    return report_markdown("Rays through the trace API on the benchmark views", command,
+                           [f"{r.backend}: {r.device}" for r in rows], rays_tables(rows))

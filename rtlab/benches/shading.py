@@ -18,35 +18,19 @@ every scene has lights, mirrors and glass, and the two kernels would be one.
 """
 from __future__ import annotations
 
-import datetime
-import platform
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..device.kernels import Variant, kernel_source
+from ..device.whitted import WhittedResult, render_whitted
 from ..scene.materials import apply_materials
 from ..scene.model import Scene
-from ..device.whitted import WhittedResult, render_whitted
+from .paper_figures import PAPER_BOUNCE_FPS, PAPER_SHADOW_FPS, PAPER_TABLE5_OCCUPANCY, PAPER_TABLE5_REGISTERS
+from .tables import Table, fmt, report_markdown
 
-# Table 5 of the paper: fps at 1024x1024 on a GeForce 8800 GTS
-PAPER_SHADOW_FPS = {"bunny": {"one-pass": 16.6, "two-pass": 18.4},
-                    "sponza": {"one-pass": 21.0, "two-pass": 23.9},
-                    "kitchen": {"one-pass": 18.1, "two-pass": 20.1}}
-PAPER_BOUNCE_FPS = {"sponza": {1: 11.3, 2: 7.2, 3: 5.0}, "kitchen": {1: 9.1, 2: 5.9, 3: 3.9}}
-PAPER_REGISTERS = {"one-pass": "22", "two-pass": "19/18"}
-PAPER_OCCUPANCY = {"one-pass": "33%", "two-pass": "50%"}
-
+# nvcc's offline report per (step, defines, block): one compile serves every frame of a kernel
 _NVCC_CACHE: dict = {}
-_SCENES: dict = {}
-
-
-def _with_materials(scene: Scene, materials: str) -> Scene:
-    """The scene with a material preset, made once: every Scene object is uploaded on its own."""
-    key = (id(scene), materials)
-    if key not in _SCENES or _SCENES[key][0] is not scene:
-        _SCENES[key] = (scene, apply_materials(scene, materials))
-    return _SCENES[key][1]
 
 
 def kernel_resources(backend, result: WhittedResult) -> dict[str, dict]:
@@ -130,7 +114,7 @@ def bench_shadows(scene: Scene, backend, mode: str, size: int, repeats: int = 10
                   variant: Variant | None = None, materials: str = "file") -> ShadingRow:
     """Table 5, shadow columns: one-pass or two-pass shadows, no secondary rays."""
     variant = variant or Variant()
-    scene = _with_materials(scene, materials)
+    scene = apply_materials(scene, materials)   # a copy; the upload is shared (by content)
     result = render_whitted(scene, backend, variant, size=size, shadows=mode, repeats=repeats, warmup=2)
     error = _check(scene, backend, variant, check_size, shadows=mode)
     return _row("shadows", scene, mode, backend, result, PAPER_SHADOW_FPS.get(scene.name, {}).get(mode), error)
@@ -141,7 +125,7 @@ def bench_bounces(scene: Scene, backend, bounces: int, size: int, repeats: int =
     """Table 5, bounce columns: the kernel tree at ``bounces``, without and with compaction, and the
     wavefront schedule."""
     variant = variant or Variant()
-    scene = _with_materials(scene, materials)
+    scene = apply_materials(scene, materials)
     plain = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
                            warmup=2)
     compact = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, compact=True,
@@ -166,7 +150,7 @@ def bench_specialisation(scene: Scene, backend, bounces: int, size: int, repeats
                          shadows: str = "one-pass") -> list[ShadingRow]:
     """The scene-specialised kernel and the general one: registers, time, and whether the images agree."""
     variant = variant or Variant()
-    scene = _with_materials(scene, materials)
+    scene = apply_materials(scene, materials)
     rows = []
     results = {}
     for specialise in (True, False):
@@ -185,51 +169,59 @@ def bench_specialisation(scene: Scene, backend, bounces: int, size: int, repeats
     return rows
 
 
-def _mark(same) -> str:
-    return "same" if same else "DIFFERENT"
+SHADOW_COLUMNS = ("scene", "backend", "shadows", "size", "ms", "fps", "paper fps", "regs", "paper regs", "occupancy",
+                  "paper occ.", "error vs float64")
+BOUNCE_COLUMNS = ("scene", "backend", "bounces", "size", "ms", "fps", "paper fps", "compacted fps", "wavefront fps",
+                  "launches (compacted, wavefront)", "rays (compacted, wavefront)", "regs", "occupancy",
+                  "error vs float64")
+SPECIAL_COLUMNS = ("scene", "backend", "kernel", "size", "depth", "ms", "fps", "regs", "occupancy", "defines", "image")
+
+
+def shadow_rows(rows: list[ShadingRow]) -> list[tuple[str, ...]]:
+    return [(r.scene, r.backend, r.mode, f"{r.size}²", f"{r.median_ms:.3f}", f"{r.fps:,.1f}", fmt(r.paper_fps, ""),
+             r.regs_text(), PAPER_TABLE5_REGISTERS[r.mode], r.occupancy_text(), PAPER_TABLE5_OCCUPANCY[r.mode],
+             r.error_text()) for r in rows if r.table == "shadows"]
+
+
+def bounce_rows(rows: list[ShadingRow]) -> list[tuple[str, ...]]:
+    out = []
+    for r in (r for r in rows if r.table == "bounces"):
+        e = r.extra
+        wave = (f"{e['wave_fps']:,.1f} (image ±{e['wave_max_diff']})", f", {e['wave_launches']}",
+                f", {e['wave_rays']:,}") if "wave_fps" in e else ("-", "", "")
+        compact = f"{e['compact_fps']:,.1f}" + ("" if e["same_image"] else " (image differs!)")
+        out.append((r.scene, r.backend, r.mode, f"{r.size}²", f"{r.median_ms:.3f}", f"{r.fps:,.1f}",
+                    fmt(r.paper_fps, ""), compact, wave[0], f"{r.launches} ({e['compact_launches']}{wave[1]})",
+                    f"{r.rays:,} ({e['compact_rays']:,}{wave[2]})", r.regs_text(), r.occupancy_text(), r.error_text()))
+    return out
+
+
+def special_rows(rows: list[ShadingRow]) -> list[tuple[str, ...]]:
+    out = []
+    for r in (r for r in rows if r.table == "specialised"):
+        flags = " ".join(f"{k[3:].lower()}={v}" for k, v in r.extra["defines"].items())
+        image = "same" if r.extra["same_image"] else f"DIFFERENT (max diff {r.extra['max_diff']})"
+        out.append((r.scene, r.backend, r.mode, f"{r.size}²", str(r.extra["depth"]), f"{r.median_ms:.3f}",
+                    f"{r.fps:,.1f}", r.regs_text(), r.occupancy_text(), flags, image))
+    return out
+
+
+def table5_tables(rows: list[ShadingRow]) -> list[Table]:
+    """The tables that have rows: shadows, bounces (the kernel tree, compacted, wavefront), and the
+    scene-specialised kernels against the general ones."""
+    tables = [Table(SHADOW_COLUMNS, shadow_rows(rows), "Table 5: shadows"),
+              Table(BOUNCE_COLUMNS, bounce_rows(rows), "Table 5: reflection/refraction kernel tree"),
+              Table(SPECIAL_COLUMNS, special_rows(rows), "scene-specialised vs general kernels, scene materials")]
+    return [t for t in tables if t.rows]
+
+
+NOTE = ("Registers and occupancy per kernel in launch order (shadows: render_shadows, or "
+        "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction). "
+        "Wavefront: one launch per level (rtlab.device.whitted, beyond the paper); ±N: its image's largest "
+        "8-bit difference from the tree's.")
 
 
 def table5_markdown(rows: list[ShadingRow], command: str) -> str:
-    """Markdown for docs/benchmarks.md: command, devices, date, then the three tables."""
-    date = datetime.date.today().isoformat()
-    devices = sorted({f"{r.backend}: {r.device}" for r in rows})
-    out = ["### Table 5: shadows and secondary rays", "", f"Command: `{command}`  ",
-           f"Date: {date}; host: {platform.node()}; devices: {'; '.join(devices)}", ""]
-    shadows = [r for r in rows if r.table == "shadows"]
-    if shadows:
-        out += ["| scene | backend | shadows | size | ms | fps | paper fps | regs | paper regs | occupancy | paper occ. | error |",
-                "|---|---|---|---:|---:|---:|---:|---|---:|---|---:|---|"]
-        for r in shadows:
-            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
-                       f"{r.paper_fps or '-'} | {r.regs_text()} | {PAPER_REGISTERS[r.mode]} | {r.occupancy_text()} | "
-                       f"{PAPER_OCCUPANCY[r.mode]} | {r.error_text()} |")
-        out.append("")
-    bounces = [r for r in rows if r.table == "bounces"]
-    if bounces:
-        out += ["| scene | backend | bounces | size | ms | fps | paper fps | compacted fps | wavefront fps | "
-                "launches (compacted, wavefront) | rays (compacted, wavefront) | regs | occupancy | error |",
-                "|---|---|---|---:|---:|---:|---:|---:|---:|---|---|---|---|---|"]
-        for r in bounces:
-            e = r.extra
-            wave = (f"{e['wave_fps']:,.1f} (image ±{e['wave_max_diff']})", f", {e['wave_launches']}",
-                    f", {e['wave_rays']:,}") if "wave_fps" in e else ("-", "", "")
-            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.median_ms:.3f} | {r.fps:,.1f} | "
-                       f"{r.paper_fps or '-'} | {e['compact_fps']:,.1f} | {wave[0]} | {r.launches} ({e['compact_launches']}{wave[1]}) | "
-                       f"{r.rays:,} ({e['compact_rays']:,}{wave[2]}) | {r.regs_text()} | {r.occupancy_text()} | "
-                       f"{r.error_text()} |")
-        out.append("")
-    spec = [r for r in rows if r.table == "specialised"]
-    if spec:
-        out += ["| scene | backend | kernel | size | depth | ms | fps | regs | occupancy | defines | image |",
-                "|---|---|---|---:|---:|---:|---:|---|---|---|---|"]
-        for r in spec:
-            d = r.extra["defines"]
-            flags = " ".join(f"{k[3:].lower()}={v}" for k, v in d.items())
-            out.append(f"| {r.scene} | {r.backend} | {r.mode} | {r.size}² | {r.extra['depth']} | {r.median_ms:.3f} | {r.fps:,.1f} | "
-                       f"{r.regs_text()} | {r.occupancy_text()} | {flags} | {_mark(r.extra['same_image'])} |")
-        out.append("")
-    out.append("Registers and occupancy per kernel in launch order (shadows: render_shadows, or "
-               "trace_primary_hits/shade_hits; tree: trace_primary_tree/trace_reflection/trace_refraction). "
-               "Wavefront: one launch per level (rtlab.device.whitted, beyond the paper); ±N: its image's largest "
-               "8-bit difference from the tree's.")
-    return "\n".join(out) + "\n"
+    """Markdown for docs/benchmarks.md: command, devices, date, then the tables."""
+    return report_markdown("Table 5: shadows and secondary rays", command,
+                           [f"{r.backend}: {r.device}" for r in rows], table5_tables(rows)) + "\n" + NOTE + "\n"

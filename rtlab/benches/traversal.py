@@ -1,33 +1,22 @@
 """The paper's Table 4: kd-tree traversal variants (and the BVH of its future work) on the current
 device. Primary rays with simple shading at 1024² (the paper's setting), one renderer launch per
-variant through rtlab.benches.primary.bench_render: median device time, fps, Mrays/s, the error against the
-float64 reference beside each time, and the resources the compiler gave the kernel - on the device
+variant through rtlab.benches.primary.bench_render: median device time, fps, Mrays/s, the error
+against the float64 reference beside each time, and the resources the compiler gave the kernel - on the device
 (Program.resources: CUDA registers and occupancy; NVIDIA OpenCL registers) and offline from nvcc
 (registers, stack, shared memory, occupancy at the launch's block size) - beside the paper's
 figures (GeForce 8800 GTS) and the speed-up over them.
 """
 from __future__ import annotations
 
-import datetime
-import platform
 from dataclasses import dataclass
 
-from .primary import BenchRow, bench_render
 from ..device.kernels import Variant, build_defines, kernel_source, primary_step
 from ..scene.model import Scene
+from .paper_figures import PAPER_SIZE, PAPER_TABLE4_FPS, PAPER_TABLE4_OCCUPANCY, PAPER_TABLE4_REGISTERS
+from .primary import BenchRow, bench_render
+from .tables import Table, fmt, report_markdown
 
 TABLE4_VARIANTS = ("stack", "packet", "restart", "shortstack", "ropes", "bvh")
-# The paper's Table 4: fps at 1024x1024, primary rays, simple shading; "-" where it gave none
-PAPER_TABLE4_FPS = {
-    "stack": {"bunny": 43.2, "sponza": 40.5, "kitchen": 39.6, "dragon": 30.4},
-    "packet": {"bunny": 15.8, "sponza": 16.5},
-    "restart": {"bunny": 30.9, "sponza": 28.6, "kitchen": 28.9, "dragon": 21.4},
-    "shortstack": {"bunny": 31.7, "sponza": 29.5, "kitchen": 28.2, "dragon": 21.8},
-    "ropes": {"bunny": 38.4, "sponza": 34.4, "kitchen": 33.4, "dragon": 26.4},
-}
-PAPER_TABLE4_REGISTERS = {"stack": 18, "packet": 20, "restart": 17, "shortstack": 28, "ropes": 24}
-PAPER_TABLE4_OCCUPANCY = {"stack": 0.50, "packet": 0.50, "restart": 0.50, "shortstack": 0.33, "ropes": 0.33}
-PAPER_SIZE = 1024
 
 
 @dataclass
@@ -76,16 +65,12 @@ def bench_table4(scene: Scene, backend, traversals=TABLE4_VARIANTS, repeats: int
     return rows
 
 
-def _fmt(value, spec: str, missing: str = "-") -> str:
-    return missing if value is None else format(value, spec)
-
-
 def resources_text(r: Table4Row) -> str:
     """Registers and occupancy: the device's where it reports them, else nvcc's offline figures."""
     b, n = r.bench, r.nvcc or {}
     regs = b.registers if b.registers else n.get("registers")
     occ = b.occupancy if b.occupancy is not None else n.get("occupancy")
-    return f"{_fmt(regs, 'd')} regs, {_fmt(occ, '.0%')}"
+    return f"{fmt(regs, 'd')} regs, {fmt(occ, '.0%')}"
 
 
 def speedup_text(r: Table4Row) -> str:
@@ -93,60 +78,64 @@ def speedup_text(r: Table4Row) -> str:
     return "-" if s is None else f"{s:,.1f}×"
 
 
-def table4_rows_markdown(rows: list[Table4Row]) -> list[str]:
-    out = ["| scene | view | backend | traversal | median ms | fps | Mrays/s | regs | occupancy | private B | "
-           "nvcc regs / stack B / shared B / occ. | error vs float64 reference | paper fps | speed-up | paper regs / occ. |",
-           "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|---|"]
+DETAIL_COLUMNS = ("scene", "view", "backend", "traversal", "median ms", "fps", "Mrays/s", "regs", "occupancy",
+                  "private B", "nvcc regs / stack B / shared B / occ.", "error vs float64 reference", "paper fps",
+                  "speed-up", "paper regs / occ.")
+
+
+def detail_rows(rows: list[Table4Row]) -> list[tuple[str, ...]]:
+    """Cells under DETAIL_COLUMNS: time, the compiler's resources, the error, the paper's figures."""
+    out = []
     for r in rows:
         b, n = r.bench, r.nvcc
-        nv = (f"{n['registers']} / {n['local_bytes']} / {n['shared_bytes']} / {n['occupancy']:.0%}" if n else "-")
+        nv = f"{n['registers']} / {n['local_bytes']} / {n['shared_bytes']} / {n['occupancy']:.0%}" if n else "-"
         paper_res = (f"{PAPER_TABLE4_REGISTERS[r.traversal]} / {PAPER_TABLE4_OCCUPANCY[r.traversal]:.0%}"
                      if r.traversal in PAPER_TABLE4_REGISTERS else "-")
-        out.append(f"| {b.scene} | {b.view} | {b.backend} | {b.variant} | {b.median_ms:.3f} | {b.fps:,.1f} | "
-                   f"{b.mrays:,.1f} | {_fmt(b.registers or None, 'd')} | {_fmt(b.occupancy, '.0%')} | {_fmt(b.local_bytes, 'd')} | {nv} | "
-                   f"{b.error_text()} | {_fmt(r.paper_fps, '.1f')} | {speedup_text(r)} | {paper_res} |")
+        paper_fps = r.paper_fps if b.size == PAPER_SIZE else None
+        out.append((b.scene, b.view, b.backend, r.traversal, f"{b.median_ms:.3f}", f"{b.fps:,.1f}", f"{b.mrays:,.1f}",
+                    fmt(b.registers or None, "d"), fmt(b.occupancy, ".0%"), fmt(b.local_bytes, "d"), nv,
+                    b.error_text(), fmt(paper_fps, ".1f"), speedup_text(r), paper_res))
     return out
 
 
-def table4_pivot_markdown(rows: list[Table4Row]) -> list[str]:
+def pivot_table(rows: list[Table4Row]) -> Table:
     """The paper's layout: one row per scene (and view, backend), one column per traversal,
-    'fps (paper fps)'."""
+    'fps (paper fps)'; last row registers and occupancy (the paper's in parentheses)."""
     traversals = list(dict.fromkeys(r.traversal for r in rows))
     groups: dict = {}
     for r in rows:
         groups.setdefault((r.bench.scene, r.bench.view, r.bench.backend), {})[r.traversal] = r
-    out = ["| scene | view | backend | " + " | ".join(traversals) + " |",
-           "|---|---|---|" + "---:|" * len(traversals)]
+    cells = []
     for (scene, view, backend), by in groups.items():
-        cells = []
+        line = [scene, view, backend]
         for t in traversals:
             r = by.get(t)
-            if r is None:
-                cells.append("-")
-                continue
-            paper = r.paper_fps
-            cells.append(f"{r.bench.fps:,.1f}" + (f" ({paper})" if paper and r.bench.size == PAPER_SIZE else ""))
-        out.append(f"| {scene} | {view} | {backend} | " + " | ".join(cells) + " |")
+            paper = r.paper_fps if r is not None and r.bench.size == PAPER_SIZE else None
+            line.append("-" if r is None else f"{r.bench.fps:,.1f}" + (f" ({paper})" if paper else ""))
+        cells.append(tuple(line))
     regs = []
     for t in traversals:
         r = next(x for x in rows if x.traversal == t)
         paper = PAPER_TABLE4_REGISTERS.get(t)
         regs.append(resources_text(r) + (f" ({paper}, {PAPER_TABLE4_OCCUPANCY[t]:.0%})" if paper else ""))
-    out.append("| registers, occupancy | | | " + " | ".join(regs) + " |")
-    return out
+    if rows:
+        cells.append(("registers, occupancy", "", "", *regs))
+    return Table(("scene", "view", "backend", *traversals), cells,
+                 note="fps per traversal, the paper's (GeForce 8800 GTS, 1024²) in parentheses; last row: registers "
+                      "and occupancy as the device reports them, else nvcc's offline figures for sm_90 (the paper's "
+                      "in parentheses).")
+
+
+def table4_tables(rows: list[Table4Row]) -> list[Table]:
+    """The pivot (the paper's layout), then the details of every row."""
+    return [pivot_table(rows),
+            Table(DETAIL_COLUMNS, detail_rows(rows),
+                  note="Details: device time (median), the compiler's resources, the error against the float64 "
+                       "reference.")]
 
 
 def table4_markdown(rows: list[Table4Row], command: str) -> str:
     """Markdown for docs/benchmarks.md: command, devices, the pivot (paper's layout), then details."""
     size = rows[0].bench.size if rows else PAPER_SIZE
-    devices = sorted({f"{r.bench.backend}: {r.bench.device}" for r in rows})
-    out = [f"### Table 4: traversal variants, primary rays, {size}x{size}", "",
-           f"Command: `{command}`  ", f"Date: {datetime.date.today().isoformat()}; host: {platform.node()}; "
-           f"devices: {'; '.join(devices)}", "",
-           "fps per traversal, the paper's (GeForce 8800 GTS, 1024²) in parentheses; last row: registers and "
-           "occupancy as the device reports them, else nvcc's offline figures for sm_90 (the paper's in "
-           "parentheses).", ""]
-    out += table4_pivot_markdown(rows)
-    out += ["", "Details: device time (median), the compiler's resources, the error against the float64 reference.", ""]
-    out += table4_rows_markdown(rows)
-    return "\n".join(out) + "\n"
+    return report_markdown(f"Table 4: traversal variants, primary rays, {size}x{size}", command,
+                           [f"{r.bench.backend}: {r.bench.device}" for r in rows], table4_tables(rows))

@@ -1,10 +1,9 @@
-"""Course commands, registered on the main ``rtlab`` app by rtlab/cli.py:
+"""The course's commands (rtlab.labs):
 
     rtlab lab list | template STEP [--out DIR] | release OUT
     rtlab grade STEP SUBMISSION_DIR [--format gradescope|json|table] [--backend B] [--out results.json]
                 [--secret-file F] [--deadline S] [--jobs N] [--require-full-marks]
     rtlab grade --bundle STEP [--out DIR]
-    rtlab inspect SCENE [--depth D] [--pixel X Y] [--screenshot out.png]
 
 Imports are lazy: registering costs nothing until a command runs.
 """
@@ -13,13 +12,14 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import Optional
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
-console = Console()
+from ..errors import RtlabError
+from .common import console
 lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write their templates, make the student release.")
 
 
@@ -80,7 +80,6 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
                                                           help="exit with status 1 unless every point is scored "
                                                                "(the bundle's self-check of the reference)")):
     """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
-    from ..errors import RtlabError
     from ..labs.results import FORMATS, report_table, write_report
     if bundle:
         if step is None:
@@ -138,30 +137,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
         raise typer.Exit(1)
 
 
-def inspect_command(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
-                    depth: int = typer.Option(6, min=0, help="kd-tree cells down to this depth"),
-                    pixel: Optional[Tuple[int, int]] = typer.Option(None, help="X Y: show this pixel's ray tree"),
-                    size: int = typer.Option(128, min=1, help="image size the pixel refers to (width = height)"),
-                    screenshot: Optional[Path] = typer.Option(None, help="write a PNG instead of opening a window"),
-                    backend: Optional[str] = typer.Option(None, help="backend that traces the pixel's rays"),
-                    window: str = typer.Option("1024x768", help="window / screenshot size WxH")):
-    """Show the scene in pyvista: mesh, kd-tree cells, camera frustum, a pixel's rays and visited leaves."""
-    from ..errors import RtlabError
-    from ..viz import inspect_scene
-    try:
-        w, h = (int(v) for v in window.lower().split("x"))
-    except ValueError:
-        raise RtlabError(f"--window must look like 1024x768, got '{window}'") from None
-    view = inspect_scene(scene, depth=depth, pixel=pixel, size=size, screenshot=screenshot, backend=backend,
-                         window_size=(w, h))
-    for line in view.summary():
-        console.print(escape(line))
-    if screenshot:
-        console.print(f"wrote {screenshot}")
-
-
 def register(app: typer.Typer) -> None:
     """Add the course commands to the main app."""
     app.add_typer(lab_app, name="lab")
     app.command("grade")(grade_command)
-    app.command("inspect")(inspect_command)

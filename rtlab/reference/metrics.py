@@ -77,7 +77,7 @@ def _condition_slack(tri, origins, directions, vertices, faces, cond_ulps):
     return slack
 
 
-def _barycentric_slack(tri, directions, vertices, faces, tie_eps, tie_abs, origins=None, cond_ulps=0.0):
+def barycentric_slack(tri, directions, vertices, faces, tie_eps, tie_abs, origins=None, cond_ulps=0.0):
     """Per-ray barycentric slack: the larger of tie_eps and the float32 conditioning slack
     (_condition_slack, when origins are given), plus tie_abs (world units) measured across the
     triangle's smallest altitude and stretched by 1/|cos| of the incidence angle, since a position
@@ -152,8 +152,8 @@ def compare_hits(ref: RefHits, tri, t, vertices, faces, origins, directions, tie
         k_known = (kt >= 0) & (kt < n_faces)
         # the kernel's triangle in float64, with edge slack: where and how close to its edge
         kt_known = np.where(k_known, kt, -1)
-        k_eps = _barycentric_slack(kt_known, d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
-        r_eps = _barycentric_slack(r_tri[differ], d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
+        k_eps = barycentric_slack(kt_known, d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
+        r_eps = barycentric_slack(r_tri[differ], d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
         k_t64, kb0, kb1, kb2 = _intersect_pairs(o, d, kt_known, vertices, faces, eps=k_eps,
                                                 tmin=lo, tmax=hi)
         k_real = np.isfinite(k_t64)

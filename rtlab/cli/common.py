@@ -1,0 +1,127 @@
+"""What every command group of the command line shares: the consoles, option parsing (lists, block
+shapes, backends), the command line a table was made with, and tables printed as rich tables."""
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table as RichTable
+
+from ..errors import RtlabError
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)   # an error stays one line
+
+
+def names(text: str) -> list[str]:
+    """'a,b,,c' -> ['a', 'b', 'c']: a comma-separated option's items."""
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def int_list(text: str, option: str) -> list[int]:
+    """'1,2,3' -> [1, 2, 3]; anything else is a one-line error naming the option."""
+    try:
+        return [int(t) for t in names(text)]
+    except ValueError:
+        raise RtlabError(f"{option} must be whole numbers separated by commas, got '{text}'") from None
+
+
+def block_shape(text: str, option: str = "--block") -> tuple[int, int]:
+    """'32x4' -> (32, 4); anything else is a one-line error naming the option."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise RtlabError(f"{option} must look like 32x4 (two positive whole numbers), got '{text}'")
+    return int(parts[0]), int(parts[1])
+
+
+def block_shapes(text: str, option: str = "--blocks") -> list[tuple[int, int]]:
+    return [block_shape(b, option) for b in names(text)]
+
+
+def backend_list(backends: str, device: Optional[str]):
+    """The backends of a comma-separated --backends; --device names an OpenCL device (CUDA takes its
+    own from $RTLAB_CUDA_DEVICE)."""
+    from ..backends import get_backend
+    return [get_backend(b, device if b == "opencl" else None) for b in names(backends)]
+
+
+def command_line(ctx: typer.Context) -> str:
+    """The command that made a table, for the markdown beside it: the command's path and the options
+    given on it and its groups (not their defaults). From the parsed context, not sys.argv, which is
+    not the command under main(argv) or a test's runner."""
+    words: list[str] = []
+    for level in reversed(list(_contexts(ctx))):
+        words += level.info_name.split() if level.parent is not None else ["rtlab"]
+        for param in level.command.params:
+            source = level.get_parameter_source(param.name)
+            if source is None or source.name == "DEFAULT":
+                continue
+            value = level.params.get(param.name)
+            values = [str(v) for v in value] if isinstance(value, (tuple, list)) else [str(value)]
+            if not param.opts[0].startswith("-"):
+                words += values
+            elif getattr(param, "is_flag", False):
+                words.append(param.opts[0] if value else (param.secondary_opts or param.opts)[0])
+            else:
+                words += [param.opts[0], *values]
+    return shlex.join(words)
+
+
+def _contexts(ctx: typer.Context):
+    while ctx is not None:
+        yield ctx
+        ctx = ctx.parent
+
+
+def print_tables(tables, width: int | None = None) -> None:
+    """Bench tables (rtlab.benches.tables.Table) as rich tables; ``width`` for tables too wide to fold
+    legibly in 80 columns."""
+    out = Console(width=max(console.width, width)) if width else console
+    for t in tables:
+        if t.note:
+            out.print(escape(t.note), highlight=False)
+        rich = RichTable(title=t.title or None)
+        for col in t.columns:
+            rich.add_column(escape(col), justify="right")
+        for cells in t.rows:
+            rich.add_row(*(escape(c) for c in cells))
+        out.print(rich)
+
+
+def append_markdown(md: Optional[Path], text: str) -> None:
+    """Append a table's markdown to --md (for docs/benchmarks.md)."""
+    if md:
+        with open(md, "a") as f:
+            f.write(text + "\n")
+
+
+def load_scene(name: str, size: Optional[int] = None):
+    from ..scene import load_scene as load
+    with console.status(f"loading scene {name}..."):
+        return load(name, size=size)
+
+
+def kd_tree(scene):
+    """The scene's kd-tree, built (or loaded from the cache) under a status line: (tree, from_cache)."""
+    from ..accel.cache import load_or_build_kdtree
+    from ..accel.kdtree import COMPILING_MESSAGE, KdBuildParams
+    with console.status(f"kd-tree for {scene.name} ({scene.n_triangles:,} triangles)...") as status:
+        def progress(message: str):
+            if message == COMPILING_MESSAGE:
+                console.print(f"{message}...")     # the one noticeable wait of a fresh install: keep it
+            status.update(message)
+        return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams(), progress=progress)
+
+
+def use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
+    """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
+    still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
+    from ..device.kernels import use_kernel_dir
+    from ..labs.trees import kernel_tree_summary
+    if kernels is not None:
+        use_kernel_dir(kernels)
+    console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)

@@ -1,0 +1,103 @@
+"""rtlab render: primary rays with simple shading, or Whitted ray tracing (--shadows, --bounces)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .common import block_shape, console, kd_tree, load_scene, use_kernels
+
+
+def render(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
+           backend: Optional[str] = typer.Option(None, help="opencl, cuda or auto ($RTLAB_BACKEND)"),
+           device: Optional[str] = typer.Option(None, help="device name substring or index ($RTLAB_DEVICE)"),
+           size: Optional[int] = typer.Option(None, min=1, help="image width = height (default: the preset's, 1024)"),
+           out: Path = typer.Option(Path("render.png"), help="PNG to write"),
+           check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
+           repeats: int = typer.Option(5, min=1, help="timed launches (median reported)"),
+           traversal: Optional[str] = typer.Option(None, help="traversal (default: bvh on a GPU, stack on a CPU)"),
+           isect: Optional[str] = typer.Option(None, help="triangle intersection test (default: watertight; the "
+                                               "paper's: moller)"),
+           block: Optional[str] = typer.Option(None, help="block / work-group shape WxH (default: 8x16 on a GPU, "
+                                               "32x4 on a CPU)"),
+           shadows: Optional[str] = typer.Option(None, help="Whitted shading: one-pass, two-pass or none"),
+           bounces: Optional[int] = typer.Option(None, min=0, help="reflection/refraction bounces (kernel tree)"),
+           materials: str = typer.Option("auto", help="with --shadows/--bounces: file, mtl, bart, paper, "
+                                         "paper-refraction, auto (rtlab.scene.materials)"),
+           fresnel: str = typer.Option("schlick", help="with --bounces: schlick or fixed"),
+           compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels"),
+           schedule: str = typer.Option("tree", help="with --bounces: tree (the paper's depth-first kernel "
+                                        "tree) or wavefront (one launch per level)"),
+           kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (a copy of "
+                                                  "kernels/ with your work; default $RTLAB_KERNEL_DIR or the "
+                                                  "installation's)")):
+    """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
+    shadows, reflection, refraction), print time and Mrays/s, write a PNG."""
+    from ..backends import get_backend
+    from ..device.rendering import render as do_render, save_png
+    from ..device.tracing import default_variant
+    out.parent.mkdir(parents=True, exist_ok=True)     # before the work: a bad --out fails at once
+    be = get_backend(backend, device)
+    chosen = {"traversal": traversal, "intersection": isect, "block": block_shape(block) if block else None}
+    variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
+    whitted = shadows is not None or bounces is not None
+    use_kernels(kernels, variant, whitted=whitted)
+    sc = load_scene(scene, size)
+    kd_tree(sc)
+    if whitted:
+        render_whitted_frame(sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel, compact,
+                             repeats, check, out, schedule)
+        return
+    with console.status(f"rendering {sc.name} {sc.camera.width}x{sc.camera.height}..."):
+        result = do_render(sc, be, variant, repeats=repeats, warmup=1, write_hits=check)
+    save_png(result.image, out)
+    res = result.resources
+    regs = f", {res['registers']} registers" if res.get("registers") else ""
+    occ = f", occupancy {res['occupancy']:.0%}" if res.get("occupancy") else ""
+    console.print(f"{sc.name} {sc.camera.width}x{sc.camera.height} on {result.backend} ({result.device}), "
+                  f"{variant.label()}: {result.median_ms:.2f} ms (median of {len(result.kernel_ms)}), "
+                  f"{result.mrays_per_s:.1f} Mrays/s{regs}{occ}; host {result.host_ms:.2f} ms per launch")
+    if check:
+        from ..reference.check import check_render
+        with console.status("float64 reference..."):
+            report = check_render(sc, result, sc.camera)
+        console.print(f"error vs float64 reference: {report.summary()}")
+    console.print(f"wrote {out}")
+
+
+def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, materials: str, fresnel: str,
+                         compact: bool, repeats: int, check: bool, out: Path, schedule: str = "tree"):
+    """`rtlab render --shadows/--bounces`: render with a material preset, print the figures, write the PNG."""
+    from ..device.rendering import save_png
+    from ..device.whitted import render_whitted
+    from ..scene.materials import apply_materials
+    scene = apply_materials(scene, materials)
+    cam = scene.camera
+    with console.status(f"rendering {scene.name} {cam.width}x{cam.height}, shadows {shadows}, {bounces} bounces..."):
+        result = render_whitted(scene, backend, variant, shadows=shadows, bounces=bounces, compact=compact,
+                                repeats=repeats, warmup=1, write_hits=check, fresnel=fresnel, schedule=schedule)
+    save_png(result.image, out)
+    kernels = ", ".join(f"{k} {ms:.2f} ms" + (f" ({result.resources[k]['registers']} regs)"
+                                              if result.resources.get(k, {}).get("registers") else "")
+                        for k, ms in result.kernel_ms().items())
+    console.print(f"{scene.name} {cam.width}x{cam.height} on {result.backend} ({result.device}), materials "
+                  f"{materials}, shadows {shadows}, {bounces} bounces (depth {result.depth}, {schedule}"
+                  f"{', compacted' if result.compact else ''}): "
+                  f"{result.median_ms:.2f} ms a frame ({result.fps:,.1f} fps), {len(result.launches)} launches, "
+                  f"{result.rays_launched():,} rays; {kernels}")
+    if bounces > 0 and result.depth == 0:
+        console.print(f"no material of {scene.name} reflects or transmits with materials {materials!r}, so no "
+                      "secondary rays were traced; the paper's Fig. 6 materials: --materials paper")
+    if check:
+        from ..reference.whitted import reference_whitted, whitted_error
+        with console.status("float64 Whitted reference..."):
+            ref = reference_whitted(scene, cam, bounces=result.depth, shadows=shadows != "none", fresnel=fresnel)
+        tree = result.tree if result.tree is not None else {"P": result.hits.tri}
+        console.print(f"error vs float64 reference: {whitted_error(result.image, tree, ref).summary()}")
+    console.print(f"wrote {out}")
+    return result
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(render)
