@@ -1,7 +1,7 @@
 """numpy mirrors of the device structs in kernels/shared/rt_types.h (sync with that file).
 
 Only float4 and 4-byte scalars cross to the device: float3 is 12 bytes in CUDA and 16 in OpenCL.
-tests/test_layout.py checks these sizes against sizeof() on the device.
+tests/test_kernel_sources.py checks these sizes against sizeof() on the device.
 """
 from __future__ import annotations
 

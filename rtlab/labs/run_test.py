@@ -105,7 +105,7 @@ def main(test_dir: str) -> int:
     backend = get_backend(job["backend"], job.get("device"))
     recorder = Recorder(d)
     recorder.wrap(backend)
-    checks.SETUP_TICK = recorder.tick
+    checks.on_setup_compile(recorder.tick)
     try:
         state = kind.setup(spec, fixture, backend)
     except KernelBuildError as e:

@@ -22,13 +22,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..device.constants import kernel_constant
 from ..scene.materials import AMBIENT, BACKGROUND, MIN_WEIGHT
 from ..scene.model import Camera, Scene
 from .metrics import image_rmse_psnr
 from .shading import to_rgb8
 from .tracer import reference_trace
 
-NO_RAY = -2           # tree entry of a node whose ray was not spawned (-1: spawned, missed)
+# Tree entry of a node whose ray was not spawned (-1: spawned, missed): the kernels' RT_NO_RAY, so that
+# the two trees compare entry by entry
+NO_RAY = int(kernel_constant("RT_NO_RAY"))
 # Secondary and shadow rays leave the surface exactly; hits nearer than this, relative to the
 # scene's coordinates, are the ray's own surface (float64 rounding is ~1e-16 of them).
 TMIN_REL = 1e-9
@@ -212,14 +215,31 @@ class WhittedError:
         return dict(vars(self))
 
 
+def node_ids(tree: dict, node: str, n: int) -> np.ndarray:
+    """(N,) int64 triangle ids of one node of a ray tree: NO_RAY where the node is missing or spawned
+    no ray, -1 where its ray missed."""
+    ids = np.asarray(tree.get(node, np.full(n, NO_RAY)), np.int64)
+    return np.where(ids < 0, np.maximum(ids, NO_RAY), ids)
+
+
 def tree_differs(tree_a: dict, tree_b: dict, n: int) -> np.ndarray:
     """(N,) bool: pixels whose ray trees differ (a node missing on one side counts as NO_RAY)."""
     differ = np.zeros(n, bool)
     for node in set(tree_a) | set(tree_b):
-        a = np.asarray(tree_a.get(node, np.full(n, NO_RAY)), np.int64)
-        b = np.asarray(tree_b.get(node, np.full(n, NO_RAY)), np.int64)
-        differ |= np.where(a < 0, np.maximum(a, NO_RAY), a) != np.where(b < 0, np.maximum(b, NO_RAY), b)
+        differ |= node_ids(tree_a, node, n) != node_ids(tree_b, node, n)
     return differ
+
+
+def first_tree_difference(tree: dict, ref_tree: dict, n: int) -> tuple[str, int, int, int] | None:
+    """The first pixel whose ray tree differs from the reference's, at the shallowest node that
+    differs there ("P" primary, "PR" its reflection, ...): (node, pixel, expected id, got id)."""
+    first = None
+    for node in sorted(set(tree) | set(ref_tree), key=lambda s: (len(s), s)):
+        got, expected = node_ids(tree, node, n), node_ids(ref_tree, node, n)
+        bad = np.flatnonzero(got != expected)
+        if bad.size and (first is None or bad[0] < first[1]):
+            first = (node, int(bad[0]), int(expected[bad[0]]), int(got[bad[0]]))
+    return first
 
 
 def whitted_error(image: np.ndarray, tree: dict | None, ref: ReferenceWhitted) -> WhittedError:
