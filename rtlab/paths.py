@@ -88,6 +88,23 @@ def ensure_user_cache() -> None:
     os.environ["XDG_CACHE_HOME"] = str(Path(tempfile.gettempdir()) / f"rtlab-cache-{uid}")
 
 
+def cache_enabled() -> bool:
+    """Whether the on-disk caches (trees, parsed meshes) are used: ``RTLAB_NO_CACHE=1`` turns them off."""
+    return os.environ.get("RTLAB_NO_CACHE", "").strip().lower() in ("", "0", "false", "no")
+
+
+def write_atomically(target: Path, write) -> None:
+    """``write(file)`` to a temporary name beside ``target``, then rename it into place: a reader in
+    another process never sees half a file, and two writers of the same entry do not clash."""
+    fd, temporary = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(temporary, target)
+    finally:
+        Path(temporary).unlink(missing_ok=True)
+
+
 def accel_cache_dir() -> Path:
     d = user_cache_dir() / "accel"
     d.mkdir(parents=True, exist_ok=True)

@@ -32,7 +32,9 @@ import pytest
 
 from rtlab.labs import LabError, grade, lab_names, load_config, splice_regions, strip_regions
 from rtlab.labs.checks import check_camera_rays, speed_score
-from rtlab.labs.grader import compile_message, default_jobs, hidden_seed, spec_for_run
+from rtlab.labs.fixtures import hidden_seed, spec_for_run
+from rtlab.labs.grader import compile_message
+from rtlab.labs.processes import default_jobs
 from rtlab.labs.regions import STUBS, find_regions, stubbed_functions
 from rtlab.labs.results import gradescope_dict
 from rtlab.labs.submission import check_source, tree_rules
@@ -568,31 +570,31 @@ def test_killed_run_leaves_valid_results(tmp_path):
 
 
 def test_jobs_follow_the_cpus_and_memory_this_process_may_use(monkeypatch):
-    from rtlab.labs import grader
+    from rtlab.labs import processes
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
     files = {"/sys/fs/cgroup/cpu.max": "300000 100000", "/proc/meminfo": "MemTotal:       67108864 kB",
              "/sys/fs/cgroup/memory.max": "max"}
-    monkeypatch.setattr(grader, "_read", lambda path: files.get(path, ""))
-    assert grader.available_cpus() == 3
+    monkeypatch.setattr(processes, "_read", lambda path: files.get(path, ""))
+    assert processes.available_cpus() == 3
     assert default_jobs(2048) == 3
     files["/sys/fs/cgroup/memory.max"] = str(5 * 2 ** 30)          # 5 GB: two tests of 2 GB beside the grader
     assert default_jobs(2048) == 2
     files["/sys/fs/cgroup/cpu.max"] = "max 100000"
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
-    assert grader.available_cpus() == 1 and default_jobs(512) == 1
+    assert processes.available_cpus() == 1 and default_jobs(512) == 1
 
 
 def test_hidden_tests_draw_their_rays_from_the_secret():
     """A hidden test's seed comes from the bundle's secret (another one without it); visible tests keep
     the config's."""
     from rtlab.labs.checks import KINDS
-    from rtlab.labs.grader import _scene
+    from rtlab.labs.fixtures import grading_scene
     hidden = CONFIG.test("trace_split_plane_rays")
     visible = CONFIG.test("trace_random_rays")
     assert spec_for_run(visible, "a" * 32) == visible
     s1, s2 = spec_for_run(hidden, "a" * 32), spec_for_run(hidden, "b" * 32)
     assert s1.params["seed"] == hidden_seed("a" * 32, hidden.name) != s2.params["seed"] != hidden.params["seed"]
-    scene = _scene(hidden.scene, hidden.size)
+    scene = grading_scene(hidden.scene, hidden.size)
     rays = [KINDS["trace_rays"].prepare(s, scene)["origins"] for s in (hidden, s1, s2)]
     assert not np.array_equal(rays[0], rays[1]) and not np.array_equal(rays[1], rays[2])
 

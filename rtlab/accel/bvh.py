@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import os
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from numba import njit, prange
 from .. import paths
 from ..device.constants import kernel_constant
 from ..errors import RtlabError, SceneError
+from .cache import atomic_savez, cache_key, load_or_build
 
 FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same inputs changes
 LEAF_BITS = int(kernel_constant("BVH_LEAF_BITS"))
@@ -289,7 +289,6 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = 
 
 
 def _save(path: Path, bvh: Bvh) -> None:
-    from .cache import atomic_savez
     atomic_savez(path, child_lo=bvh.child_lo, child_hi=bvh.child_hi, child_ref=bvh.child_ref,
                  objects=bvh.objects, bounds=bvh.bounds, depth=np.int64(bvh.depth),
                  build_seconds=np.float64(bvh.build_seconds), format=np.str_(FORMAT_VERSION))
@@ -310,20 +309,9 @@ def load_or_build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildP
                       cache_dir: str | os.PathLike | None = None) -> tuple[Bvh, bool]:
     """The mesh's BVH from the on-disk cache (keyed like the kd-tree's: mesh content and build
     parameters; RTLAB_NO_CACHE=1 turns it off), else built and stored. Returns (bvh, from_cache)."""
-    from . import cache
-    if cache._cache_disabled():
+    if not paths.cache_enabled():
         return build_bvh(vertices, faces, params), False
     directory = Path(cache_dir) if cache_dir is not None else paths.accel_cache_dir()
     directory.mkdir(parents=True, exist_ok=True)
-    path = directory / f"{cache.cache_key(vertices, faces, params)}.npz"
-    if path.is_file():
-        try:
-            return _load(path, params), True
-        except Exception:                 # corrupt or foreign file: rebuild over it
-            pass
-    bvh = build_bvh(vertices, faces, params)
-    try:
-        _save(path, bvh)
-    except OSError as exc:                # read-only or full cache: the BVH is still good
-        warnings.warn(f"BVH cache not written to {directory}: {exc}", stacklevel=2)
-    return bvh, False
+    path = directory / f"{cache_key(vertices, faces, params)}.npz"
+    return load_or_build(path, lambda p: _load(p, params), lambda: build_bvh(vertices, faces, params), _save, "BVH")

@@ -1,7 +1,8 @@
-"""On-disk cache of built kd-trees, keyed by mesh content and build parameters.
+"""On-disk cache of built acceleration structures (kd-trees; the BVH's in rtlab.accel.bvh), keyed by
+mesh content and build parameters.
 
-A tree is stored as one uncompressed ``.npz`` in ``rtlab.paths.accel_cache_dir()`` (or
-``cache_dir``), named by sha256(vertices bytes, faces bytes, shapes, params.key(), FORMAT_VERSION).
+A structure is stored as one uncompressed ``.npz`` in ``rtlab.paths.accel_cache_dir()`` (or
+``cache_dir``), named by sha256(vertices bytes, faces bytes, shapes, params.key(), format version).
 Files are written to a temporary name and renamed into place, so readers never see a partial file;
 a file that cannot be read back is rebuilt. ``RTLAB_NO_CACHE=1`` turns the cache off.
 """
@@ -9,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -22,31 +22,38 @@ from .kdtree import KdBuildParams, KdTree, build_kdtree
 FORMAT_VERSION = "kdtree-v2"
 
 
-def cache_key(vertices: np.ndarray, faces: np.ndarray, params: KdBuildParams) -> str:
+def cache_key(vertices: np.ndarray, faces: np.ndarray, params, format_version: str = FORMAT_VERSION) -> str:
+    """The file name (without .npz) of a structure built by ``params`` (its ``key()``) over this mesh."""
     v = np.ascontiguousarray(vertices, np.float32)
     f = np.ascontiguousarray(faces, np.int32)
     h = hashlib.sha256()
-    h.update(f"{FORMAT_VERSION}|{params.key()}|v{v.shape}|f{f.shape}|".encode())
+    h.update(f"{format_version}|{params.key()}|v{v.shape}|f{f.shape}|".encode())
     h.update(memoryview(v).cast("B"))
     h.update(memoryview(f).cast("B"))
     return h.hexdigest()
 
 
-def _cache_disabled() -> bool:
-    return os.environ.get("RTLAB_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no")
-
-
 def atomic_savez(path: Path, **arrays) -> None:
-    """np.savez to a temporary name beside ``path``, then rename into place: a reader never sees a
-    half-written cache file, and two processes building the same structure do not clash."""
-    fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=path.parent)
+    """np.savez, written atomically (rtlab.paths.write_atomically)."""
+    paths.write_atomically(path, lambda f: np.savez(f, **arrays))
+
+
+def load_or_build(path: Path, load, build, save, what: str, progress=None):
+    """The structure stored at ``path`` (``load(path)``), else ``build()`` and ``save(path, it)``;
+    returns (structure, from_cache). A file that cannot be read back is rebuilt over; one that
+    cannot be written (a read-only or full cache) leaves the structure good and says so once."""
+    if path.is_file():
+        try:
+            return load(path), True
+        except Exception as exc:          # corrupt or foreign file: rebuild over it
+            if progress is not None:
+                progress(f"{what} cache unreadable ({exc}); rebuilding")
+    built = build()
     try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        save(path, built)
+    except OSError as exc:
+        warnings.warn(f"{what} cache not written to {path.parent}: {exc}", stacklevel=3)
+    return built, False
 
 
 def _save(path: Path, tree: KdTree) -> None:
@@ -75,25 +82,21 @@ def load_or_build_kdtree(vertices: np.ndarray, faces: np.ndarray,
     ``build_seconds`` of a cached tree is the time its original build took.
     progress: optional ``progress(message: str)``.
     """
-    if _cache_disabled():
+    if not paths.cache_enabled():
         return build_kdtree(vertices, faces, params, progress), False
     directory = Path(cache_dir) if cache_dir is not None else paths.accel_cache_dir()
     directory.mkdir(parents=True, exist_ok=True)
-    path = directory / f"{cache_key(vertices, faces, params)}.npz"
-    if path.is_file():
-        try:
-            tree = _load(path, params)
-            if progress is not None:
-                progress(f"kd-tree from cache ({len(tree.nodes):,} nodes)")
-            return tree, True
-        except Exception as exc:          # corrupt or foreign file: rebuild over it
-            if progress is not None:
-                progress(f"kd-tree cache unreadable ({exc}); rebuilding")
-    if progress is not None:
-        progress(f"building kd-tree over {len(faces):,} triangles")
-    tree = build_kdtree(vertices, faces, params, progress)
-    try:
-        _save(path, tree)
-    except OSError as exc:            # read-only or full cache: the tree is still good
-        warnings.warn(f"kd-tree cache not written to {directory}: {exc}", stacklevel=2)
-    return tree, False
+
+    def load(path):
+        tree = _load(path, params)
+        if progress is not None:
+            progress(f"kd-tree from cache ({len(tree.nodes):,} nodes)")
+        return tree
+
+    def build():
+        if progress is not None:
+            progress(f"building kd-tree over {len(faces):,} triangles")
+        return build_kdtree(vertices, faces, params, progress)
+
+    return load_or_build(directory / f"{cache_key(vertices, faces, params)}.npz", load, build, _save, "kd-tree",
+                         progress)

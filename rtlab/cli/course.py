@@ -106,7 +106,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
             write_report(partial, out, out_fmt)
 
     try:
-        from ..labs.grader import read_secret
+        from ..labs.fixtures import read_secret
         secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
                        tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,

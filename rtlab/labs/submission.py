@@ -27,7 +27,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-from .cpp import split_directives, tokenize
+from .ctokens import split_directives, tokenize
 
 MAX_FILE_BYTES = 1 << 20
 ALLOWED_DIRECTIVES = {"define", "undef", "if", "ifdef", "ifndef", "elif", "elifdef", "elifndef", "else",

@@ -1,15 +1,8 @@
 """The float64 reference tracer and error metrics: ground truth for every check."""
 from .metrics import HitComparison, compare_hits, image_rmse_psnr, pixels_differing
-from .tracer import (
-    RefHits,
-    ReferenceBVH,
-    brute_force_trace,
-    build_reference_bvh,
-    cached_reference_bvh,
-    intersect_ray_triangles_f64,
-    reference_trace,
-    usable_triangle_mask,
-)
+from .bvh import ReferenceBVH, build_reference_bvh, cached_reference_bvh
+from .tracer import RefHits, brute_force_trace, intersect_ray_triangles_f64, reference_trace
+from .watertight import usable_triangle_mask
 
 __all__ = [
     "RefHits",

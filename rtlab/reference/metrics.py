@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .tracer import RefHits, _intersect_pairs
+from .tracer import RefHits, intersect_pairs
 
 __all__ = ["HitComparison", "compare_hits", "image_rmse_psnr", "pixels_differing"]
 
@@ -154,7 +154,7 @@ def compare_hits(ref: RefHits, tri, t, vertices, faces, origins, directions, tie
         kt_known = np.where(k_known, kt, -1)
         k_eps = barycentric_slack(kt_known, d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
         r_eps = barycentric_slack(r_tri[differ], d, vertices, faces, tie_eps, tie_abs, o, cond_ulps)
-        k_t64, kb0, kb1, kb2 = _intersect_pairs(o, d, kt_known, vertices, faces, eps=k_eps,
+        k_t64, kb0, kb1, kb2 = intersect_pairs(o, d, kt_known, vertices, faces, eps=k_eps,
                                                 tmin=lo, tmax=hi)
         k_real = np.isfinite(k_t64)
         k_edge = k_real & (_min_barycentric(kb0, kb1, kb2) < k_eps)

@@ -11,8 +11,8 @@ from rtlab.scene.model import Camera, Light, Material, Scene
 from rtlab.scene.presets import PRESETS, Preset, bench_camera, bench_view_names, list_scenes
 
 _LAZY = {
-    "load_scene": "loader", "load_mesh_file": "loader", "MeshData": "loader",
-    "mesh_warnings": "loader", "scene_warnings": "loader", "smooth_vertex_normals": "loader",
+    "load_scene": "loader", "load_mesh_file": "loader", "MeshData": "mesh",
+    "mesh_warnings": "mesh", "scene_warnings": "mesh", "smooth_vertex_normals": "mesh",
     "default_scene": "procedural",
 }
 

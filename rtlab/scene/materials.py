@@ -187,7 +187,7 @@ def glass_scene(size: int = 64, lights: int = 1, cube: bool = True, chrome: bool
     ``lights`` 0 gives a scene without lights; ``cube``/``chrome`` False leave those out."""
     import trimesh
 
-    from rtlab.scene.loader import smooth_vertex_normals
+    from rtlab.scene.mesh import smooth_vertex_normals
 
     materials = [Material("light", diffuse=(0.85, 0.85, 0.8), specular=(0.1, 0.1, 0.1), shininess=16.0),
                  Material("dark", diffuse=(0.2, 0.25, 0.35)),

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from rtlab.scene.mesh import smooth_vertex_normals
 from rtlab.scene.model import Camera, Light, Material, Scene
 
 GROUND_HALF_SIZE = 8.0
@@ -60,9 +61,7 @@ def _ground() -> _Part:
 
 def _smooth_part(mesh: trimesh.Trimesh, material: str) -> _Part:
     # rtlab's own area-weighted normals: trimesh's vertex_normals wants scipy, and without it
-    # prints a traceback before falling back (the loader imports this module: import here)
-    from rtlab.scene.loader import smooth_vertex_normals
-
+    # prints a traceback before falling back
     vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
     return _Part(vertices, faces, smooth_vertex_normals(vertices, faces).astype(np.float64),
                  np.full(len(mesh.faces), MATERIAL_ID[material], np.int32))

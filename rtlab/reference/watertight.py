@@ -1,0 +1,161 @@
+"""The float64 reference's triangle test: the watertight test of Woop, Benthin & Wald, "Watertight
+Ray/Triangle Intersection", JCGT 2(1), 2013, in float64 (rtlab.reference.tracer's contract), as numpy
+over arrays and as numba over one triangle. Both do the same float operations in the same order, so
+the BVH tracer and brute force give bit-identical t. Which triangles can be hit at all is
+:func:`usable_triangle_mask`'s decision."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+UNIT_ROUNDOFF = 2.0 ** -53
+
+
+def mesh_f64(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """The float32 scene values promoted to float64, and faces as int64, validated."""
+    v32 = np.asarray(vertices, dtype=np.float32)
+    f = np.asarray(faces)
+    if v32.ndim != 2 or v32.shape[1] != 3:
+        raise ValueError(f"vertices must be (V, 3), got {v32.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces must be (F, 3), got {f.shape}")
+    f = f.astype(np.int64, copy=False)
+    if f.size and (f.min() < 0 or f.max() >= v32.shape[0]):
+        raise ValueError("faces index outside vertices")
+    return v32.astype(np.float64), f
+
+
+def usable_triangle_mask(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
+    """(F,) bool: corners finite and area certainly non-zero.
+
+    The normal (v1-v0) x (v2-v0) is computed in float64 with a forward error bound per component
+    (a Shewchuk-style filter: two differences, two products and a subtraction, each rounding once,
+    stay below 8 u (|a b| + |c d|)). A triangle is usable when some component exceeds its bound,
+    i.e. its exact area is provably non-zero. Exactly collinear or repeated corners always fail;
+    so do slivers thinner than float64 can resolve, which no test could hit reliably anyway.
+    """
+    finite = np.isfinite(v0).all(1) & np.isfinite(v1).all(1) & np.isfinite(v2).all(1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        e1 = v1 - v0
+        e2 = v2 - v0
+        usable = np.zeros(v0.shape[0], dtype=bool)
+        for a, b in ((1, 2), (2, 0), (0, 1)):
+            p = e1[:, a] * e2[:, b]
+            q = e1[:, b] * e2[:, a]
+            bound = 8.0 * UNIT_ROUNDOFF * (np.abs(p) + np.abs(q))
+            usable |= np.abs(p - q) > bound
+    return usable & finite
+
+
+def ray_shear_numpy(d: np.ndarray):
+    """Woop 2013 section 3: axis permutation (kx, ky, kz) and shear (sx, sy, sz) per ray."""
+    absd = np.abs(d)
+    # first maximum wins, like the strict '>' chain in ray_shear below
+    kz = np.where(absd[:, 1] > absd[:, 0], 1, 0)
+    kz = np.where(absd[:, 2] > absd[np.arange(d.shape[0]), kz], 2, kz)
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    dz = d[np.arange(d.shape[0]), kz]
+    flip = dz < 0.0  # keep the winding; irrelevant for two-sided hits but matches the paper
+    kx, ky = np.where(flip, ky, kx), np.where(flip, kx, ky)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sx = d[np.arange(d.shape[0]), kx] / dz
+        sy = d[np.arange(d.shape[0]), ky] / dz
+        sz = 1.0 / dz
+    valid = np.isfinite(d).all(1) & np.isfinite(sx) & np.isfinite(sy) & np.isfinite(sz)
+    return valid, kx, ky, kz, sx, sy, sz
+
+
+def woop_numpy(a, b, c, kx, ky, kz, sx, sy, sz):
+    """Woop's watertight test on corner-minus-origin arrays a, b, c of shape (..., 3).
+
+    kx..sz broadcast against a[..., 0]. Returns (t, b0, b1, b2, inside): t and the barycentric
+    weights of v0, v1, v2 (garbage where not inside), and inside = edge functions of one sign
+    with a non-zero determinant (edges inclusive).
+    """
+    def pick(x, k):
+        return np.take_along_axis(x, np.broadcast_to(k, x.shape[:-1])[..., None], -1)[..., 0]
+
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        akx, aky, akz = pick(a, kx), pick(a, ky), pick(a, kz)
+        bkx, bky, bkz = pick(b, kx), pick(b, ky), pick(b, kz)
+        ckx, cky, ckz = pick(c, kx), pick(c, ky), pick(c, kz)
+        ax = akx - sx * akz
+        ay = aky - sy * akz
+        bx = bkx - sx * bkz
+        by = bky - sy * bkz
+        cx = ckx - sx * ckz
+        cy = cky - sy * ckz
+        eu = cx * by - cy * bx
+        ev = ax * cy - ay * cx
+        ew = bx * ay - by * ax
+        mixed = ((eu < 0) | (ev < 0) | (ew < 0)) & ((eu > 0) | (ev > 0) | (ew > 0))
+        det = eu + ev + ew
+        inside = ~mixed & (det != 0.0)
+        tt = eu * (sz * akz) + ev * (sz * bkz) + ew * (sz * ckz)
+        t = tt / det
+        return t, eu / det, ev / det, ew / det, inside
+
+
+@njit(cache=True, inline="always")
+def ray_shear(dx, dy, dz):
+    """Woop 2013 section 3, scalar: (valid, kx, ky, kz, sx, sy, sz)."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    kz = 0
+    m = ax
+    if ay > m:
+        kz = 1
+        m = ay
+    if az > m:
+        kz = 2
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    d = (dx, dy, dz)
+    dkz = d[kz]
+    if dkz < 0.0:
+        kx, ky = ky, kx
+    if dkz == 0.0 or not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+        return False, kx, ky, kz, 0.0, 0.0, 0.0
+    sx = d[kx] / dkz
+    sy = d[ky] / dkz
+    sz = 1.0 / dkz
+    valid = math.isfinite(sx) and math.isfinite(sy) and math.isfinite(sz)
+    return valid, kx, ky, kz, sx, sy, sz
+
+
+@njit(cache=True, inline="always")
+def woop_hit(tv, j, ox, oy, oz, kx, ky, kz, sx, sy, sz):
+    """Woop 2013 on triangle row j of tv (v0xyz v1xyz v2xyz) -> (inside, t, u, v).
+
+    Same operations in the same order as woop_numpy: the brute-force check compares bit for bit.
+    """
+    o = (ox, oy, oz)
+    akx = tv[j, kx] - o[kx]
+    aky = tv[j, ky] - o[ky]
+    akz = tv[j, kz] - o[kz]
+    bkx = tv[j, 3 + kx] - o[kx]
+    bky = tv[j, 3 + ky] - o[ky]
+    bkz = tv[j, 3 + kz] - o[kz]
+    ckx = tv[j, 6 + kx] - o[kx]
+    cky = tv[j, 6 + ky] - o[ky]
+    ckz = tv[j, 6 + kz] - o[kz]
+    ax = akx - sx * akz
+    ay = aky - sy * akz
+    bx = bkx - sx * bkz
+    by = bky - sy * bkz
+    cx = ckx - sx * ckz
+    cy = cky - sy * ckz
+    # edge functions: each uses only the two corners of its edge, so a neighbour sharing the edge
+    # computes exactly the negated value (the watertightness argument of Woop 2013)
+    eu = cx * by - cy * bx
+    ev = ax * cy - ay * cx
+    ew = bx * ay - by * ax
+    if (eu < 0.0 or ev < 0.0 or ew < 0.0) and (eu > 0.0 or ev > 0.0 or ew > 0.0):
+        return False, 0.0, 0.0, 0.0
+    det = eu + ev + ew
+    if det == 0.0:
+        return False, 0.0, 0.0, 0.0
+    tt = eu * (sz * akz) + ev * (sz * bkz) + ew * (sz * ckz)
+    return True, tt / det, ev / det, ew / det
