@@ -19,3 +19,11 @@ class KernelBuildError(RtlabError):
 
 class VariantError(RtlabError):
     """An unknown variant name (traversal, intersection test, memory placement...)."""
+
+
+class LabError(RtlabError):
+    """A lab step, its grading config, a template or a submission is malformed (rtlab.labs)."""
+
+
+class InspectError(RtlabError):
+    """Scene inspection cannot run (no OpenGL for off-screen rendering, a pixel outside the image...)."""

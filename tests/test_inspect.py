@@ -140,7 +140,7 @@ def test_cli_inspect_writes_screenshot(tmp_path):
 
 
 def test_no_opengl_is_a_clear_error(monkeypatch):
-    import rtlab.viz as ins
+    import rtlab.viz.headless as ins
     monkeypatch.setattr(ins, "_headless", None)
     monkeypatch.setattr(ins, "HEADLESS_WINDOWS", ("vtkNoSuchRenderWindow",))
     monkeypatch.delenv("RTLAB_VTK_WINDOW", raising=False)

@@ -8,7 +8,8 @@ kernels, and the autograder.
 """
 from .config import LabConfig, TestSpec, lab_names, load_config
 from .grader import GradeReport, TestResult, grade
-from .regions import LabError, find_regions, splice_regions, strip_regions, stubbed_functions
+from ..errors import LabError
+from .regions import find_regions, splice_regions, strip_regions, stubbed_functions
 from .release import write_release
 from .template import template_files, write_template
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..paths import IN_CHECKOUT, PROJECT_DIR, find_scene_file
 from .config import load_config
-from .regions import LabError
+from ..errors import LabError
 
 VENV = "/opt/rtlab"
 ROOT = "/autograder"

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..paths import LABS_DIR
-from .regions import LabError
+from ..errors import LabError
 
 VISIBILITIES = ("visible", "after_due_date", "after_published", "hidden")
 DEFAULT_TIME_LIMIT = 20.0     # seconds for a test's own work: kernel launches and checks

@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from .config import TestSpec
-from .regions import LabError
+from ..errors import LabError
 
 _fixture_lock = threading.Lock()
 _fixture_dir: Path | None = None

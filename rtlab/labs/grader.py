@@ -36,7 +36,7 @@ from pathlib import Path
 from .config import LabConfig, TestSpec, load_config
 from .fixtures import prepare_fixture, spec_for_run
 from .processes import ChildResult, Limits, default_jobs, run_child, shorten
-from .regions import LabError
+from ..errors import LabError
 from .submission import REFUSED_MARK
 from .trees import StudentTree, build_student_tree, reference_tree
 

@@ -11,11 +11,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from ..errors import RtlabError
-
-
-class LabError(RtlabError):
-    """A lab step, its grading config, a template or a submission is malformed."""
+from ..errors import LabError
 
 
 BEGIN_RE = re.compile(r"^([ \t]*)/\*\s*BEGIN SOLUTION\s*\*/[ \t]*$", re.M)

@@ -21,7 +21,7 @@ import tomllib
 from pathlib import Path
 
 from .config import lab_names, load_config
-from .regions import LabError
+from ..errors import LabError
 from .trees import copy_stubbed, reference_kernels
 
 RELEASE_ITEMS = ("pyproject.toml", "Makefile", "scripts", "rtlab", "notebooks")

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import LabConfig, lab_names, load_config
-from .regions import LabError, find_regions, strip_regions
+from ..errors import LabError
+from .regions import find_regions, strip_regions
 from .submission import Refusal, Refused, check_source, read_submitted, refused_placeholder, tree_rules
 
 KERNEL_SUBDIRS = ("shared", "cuda", "opencl")
