@@ -36,10 +36,41 @@ DATA_ROOT = PROJECT_DIR if IN_CHECKOUT else PACKAGE_DIR / "_data"
 # The reference kernels, always these (the grader compiles the reference from here)
 REFERENCE_KERNEL_DIR = DATA_ROOT / "kernels"
 # $RTLAB_KERNEL_DIR swaps in another kernel tree: the grader compiles a submission from a copy of
-# kernels/ with the student's files laid over it.
+# kernels/ with the student's files laid over it. The tree at startup; kernel_dir() is the one in use.
 KERNEL_DIR = Path(os.environ.get("RTLAB_KERNEL_DIR") or REFERENCE_KERNEL_DIR)
 SHARED_KERNEL_DIR = KERNEL_DIR / "shared"
 LABS_DIR = DATA_ROOT / "labs"
+_kernel_dir = KERNEL_DIR
+
+
+def kernel_dir() -> Path:
+    """The kernel tree this process compiles from (shared/, cuda/, opencl/)."""
+    return _kernel_dir
+
+
+def use_kernel_dir(root) -> Path:
+    """Compile from the kernel tree at ``root`` from now on in this process (``rtlab render --kernels
+    DIR``, the grader's reference); returns the tree used before."""
+    from .errors import VariantError
+    global _kernel_dir
+    root = Path(root).expanduser().resolve()
+    if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
+        raise VariantError(f"{root} is not a kernel tree: it needs shared/ and opencl/ or cuda/ "
+                           f"(a copy of the project's kernels/ folder)")
+    previous, _kernel_dir = _kernel_dir, root
+    return previous
+
+
+def include_dirs(source) -> list[Path]:
+    """Where a kernel source's quoted includes are searched after its own folder: the shared headers
+    of the tree it belongs to (kernels/opencl/x.cl -> kernels/shared), then the current tree's (the
+    grader's harness kernels live outside any tree)."""
+    own = Path(source).resolve().parent.parent / "shared"
+    dirs = [own] if own.is_dir() else []
+    current = _kernel_dir / "shared"
+    if current not in dirs:
+        dirs.append(current)
+    return dirs
 
 
 def user_cache_dir() -> Path:

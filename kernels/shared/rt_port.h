@@ -15,7 +15,7 @@
 #define RT_PORT_H
 
 /* ---- Variants: compile-time switches. rtlab/device/kernels.py passes -D for each; these are the
- * defaults. The host reads the codes from this file (rtlab/device/constants.py): one source. */
+ * defaults. The host reads the codes from this file (rtlab/kernel_constants.py): one source. */
 #define RT_ISECT_MOLLER 0          /* Moller & Trumbore 1997 (Table 3, MT) */
 #define RT_ISECT_WALD 1            /* Wald 2004 projection test, precomputed data (Table 3) */
 #define RT_ISECT_PLUCKER 2         /* Plucker coordinates, precomputed (Table 3) */

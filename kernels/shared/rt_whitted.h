@@ -55,7 +55,7 @@
 #ifndef RT_WAVEFRONT               /* 1: one launch per level over a ray queue (rt_wavefront.h) */
 #define RT_WAVEFRONT 0
 #endif
-#define RT_MIN_WEIGHT (1.0f / 512.0f)  /* the host reads it (rtlab/device/constants.py) */
+#define RT_MIN_WEIGHT (1.0f / 512.0f)  /* the host reads it (rtlab/kernel_constants.py) */
 #define RT_RAY_REFLECTION 0
 #define RT_RAY_REFRACTION 1
 #define RT_NO_RAY (-2)             /* tri of a record whose ray was not spawned (-1: spawned, missed) */

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import paths
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from ..errors import RtlabError, SceneError
 from .cache import atomic_savez, cache_key, load_or_build
 

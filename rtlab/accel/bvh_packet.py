@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from ..errors import SceneError
 from .bvh import Bvh, BvhBuildParams
 

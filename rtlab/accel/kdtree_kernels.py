@@ -1,6 +1,6 @@
 """The kd-tree builder's numba kernels (rtlab.accel.kdtree builds the tree with them, level by level).
 
-One file, over the ~400 lines the project keeps modules under, for a reason: these functions call
+Why one file: over the ~400 lines the project keeps modules under, because these functions call
 each other (sweeps, splits, clipping, linking a level), numba compiles them together on first use
 and caches them beside this file as one unit; split across modules, a change to one would not
 invalidate the cached code of those that inline it. Boxes are float32 rows (lo x, y, z, hi x, y, z);
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 
 LEAF_TAG = int(kernel_constant("KD_LEAF"))   # axis field 3 marks a leaf (rt_kdtree.h)
 # Event types of the exact sweep, in the order they are processed at one position: references

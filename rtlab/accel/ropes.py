@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from ..errors import RtlabError
 from .kdtree import LEAF_TAG, KdTree
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from ..errors import VariantError
 
 WALD_ROWS = int(kernel_constant("RT_WALD_ROWS"))

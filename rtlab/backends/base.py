@@ -19,6 +19,15 @@ from pathlib import Path
 import numpy as np
 
 
+# nvcc's division and square root at NVIDIA OpenCL's default precision (OpenCL C allows 2.5 ulp for
+# x / y and 3 ulp for sqrt; NVIDIA's compiler emits div.full/rcp.approx/rsqrt.approx). nvcc's IEEE
+# defaults add a slow-path branch per division (the trace kernel's SASS was twice OpenCL's length).
+# Both GPU backends then compute the same bits, and the kernels' rounding bounds (RT_T_PAD in
+# rt_intersect.h) already allow a reciprocal that is not correctly rounded. Every CUDA compile uses
+# them: the backend's and the offline nvcc report's (rtlab.backends.nvcc).
+CUDA_PRECISION_OPTIONS = ("--prec-div=false", "--prec-sqrt=false")
+
+
 @dataclass
 class KernelResources:
     """What the compiler gave a kernel, and the occupancy at a launch shape where known."""

@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BackendError, KernelBuildError
+from ..paths import include_dirs
 from .occupancy import SmLimits, cuda_occupancy
-from .base import Backend, KernelResources, Program, Texture, format_build_error, read_source, round_up
+from .base import (CUDA_PRECISION_OPTIONS, Backend, KernelResources, Program, Texture, format_build_error, read_source,
+                   round_up)
 
 
 def _pycuda():
@@ -199,7 +201,6 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        from ..device.kernels import CUDA_PRECISION_OPTIONS, include_dirs
         options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), options)
         if key in self._programs:

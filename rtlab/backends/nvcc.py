@@ -9,14 +9,13 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from ..device.kernels import CUDA_PRECISION_OPTIONS
 from ..errors import KernelBuildError
-from .base import KernelResources, format_build_error
+from ..paths import include_dirs
+from .base import CUDA_PRECISION_OPTIONS, KernelResources, format_build_error
 from .occupancy import SM90, cuda_occupancy
 
 
 def _includes(path) -> list[str]:
-    from ..device.kernels import include_dirs
     return [f"-I{d}" for d in include_dirs(path)]
 
 

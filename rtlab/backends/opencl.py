@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BackendError, KernelBuildError
+from ..paths import include_dirs
 from .base import Backend, KernelResources, Program, Texture, format_build_error, read_source, round_up
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
@@ -174,7 +175,6 @@ class OpenCLBackend(Backend):
         return SM90
 
     def compile(self, path: Path, defines: dict, options: tuple[str, ...] = ()) -> OpenCLProgram:
-        from ..device.kernels import include_dirs
         cl = _cl()
         # the include folders are part of the key: the harness kernels compile against any tree
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))

@@ -14,12 +14,12 @@ import typer
 from rich.markup import escape
 
 from ..errors import RtlabError
-from . import bench, course, render, scene
+from . import bench, bench_paper, course, render, scene
 from .common import err_console
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL.")
-for group in (scene, render, bench, course):
+for group in (scene, render, bench, course):       # bench_paper's commands join bench's group
     group.register(app)
 
 

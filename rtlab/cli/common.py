@@ -120,8 +120,8 @@ def kd_tree(scene):
 def use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
     """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
     still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
-    from ..device.kernels import use_kernel_dir
     from ..labs.trees import kernel_tree_summary
+    from ..paths import use_kernel_dir
     if kernels is not None:
         use_kernel_dir(kernels)
     console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)

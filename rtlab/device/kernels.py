@@ -2,7 +2,7 @@
 
 Every lab step is a pair ``kernels/cuda/<step>.cu`` / ``kernels/opencl/<step>.cl``; algorithm code
 lives once in ``kernels/shared/*.h``. Variant names map to the integer codes listed atop
-``kernels/shared/rt_port.h``, read from there (rtlab.device.constants). Scene features switch code
+``kernels/shared/rt_port.h``, read from there (rtlab.kernel_constants). Scene features switch code
 off that a scene does not need.
 """
 from __future__ import annotations
@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import VariantError
-from ..paths import KERNEL_DIR
-from .constants import kernel_constant
+from ..paths import kernel_dir, use_kernel_dir  # noqa: F401  (use_kernel_dir: the loader's too)
+from ..kernel_constants import kernel_constant
 
 
 def _codes(prefix: str, names) -> dict[str, int]:
@@ -59,45 +59,21 @@ def primary_step(variant: "Variant") -> str:
 
 def lab_steps() -> list[str]:
     """Lab steps that have kernels in either language, sorted."""
-    cu = {p.stem for p in (KERNEL_DIR / "cuda").glob("*.cu")}
-    cl = {p.stem for p in (KERNEL_DIR / "opencl").glob("*.cl")}
+    cu = {p.stem for p in (kernel_dir() / "cuda").glob("*.cu")}
+    cl = {p.stem for p in (kernel_dir() / "opencl").glob("*.cl")}
     return sorted(cu | cl)
 
 
 def unpaired_steps() -> dict[str, list[str]]:
     """Steps that exist in one language only (a defect: every step exists as .cu and .cl)."""
-    cu = {p.stem for p in (KERNEL_DIR / "cuda").glob("*.cu")}
-    cl = {p.stem for p in (KERNEL_DIR / "opencl").glob("*.cl")}
+    cu = {p.stem for p in (kernel_dir() / "cuda").glob("*.cu")}
+    cl = {p.stem for p in (kernel_dir() / "opencl").glob("*.cl")}
     return {"cuda_only": sorted(cu - cl), "opencl_only": sorted(cl - cu)}
-
-
-def use_kernel_dir(root) -> Path:
-    """Compile from the kernel tree at ``root`` (shared/, cuda/, opencl/) from now on in this process
-    (``rtlab render --kernels DIR``, the grader's reference); returns the tree used before."""
-    global KERNEL_DIR
-    root = Path(root).expanduser().resolve()
-    if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
-        raise VariantError(f"{root} is not a kernel tree: it needs shared/ and opencl/ or cuda/ "
-                           f"(a copy of the project's kernels/ folder)")
-    previous, KERNEL_DIR = KERNEL_DIR, root
-    return previous
-
-
-def include_dirs(source) -> list[Path]:
-    """Where a kernel source's quoted includes are searched after its own folder: the shared headers
-    of the tree it belongs to (kernels/opencl/x.cl -> kernels/shared), then the current tree's (the
-    grader's harness kernels live outside any tree)."""
-    own = Path(source).resolve().parent.parent / "shared"
-    dirs = [own] if own.is_dir() else []
-    current = KERNEL_DIR / "shared"
-    if current not in dirs:
-        dirs.append(current)
-    return dirs
 
 
 def kernel_source(step: str, language: str) -> Path:
     ext = {"cuda": ".cu", "opencl": ".cl"}[language]
-    path = KERNEL_DIR / language / f"{step}{ext}"
+    path = kernel_dir() / language / f"{step}{ext}"
     if not path.is_file():
         raise VariantError(f"lab step '{step}' has no {language} kernel ({path}); steps: {', '.join(lab_steps())}")
     return path
@@ -209,13 +185,6 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
     return defines
 
 
-# nvcc's division and square root at NVIDIA OpenCL's default precision (OpenCL C allows 2.5 ulp for
-# x / y and 3 ulp for sqrt; NVIDIA's compiler emits div.full/rcp.approx/rsqrt.approx). nvcc's IEEE
-# defaults add a slow-path branch per division (the trace kernel's SASS was twice OpenCL's length).
-# Both GPU backends then compute the same bits, and the kernels' rounding bounds (RT_T_PAD in
-# rt_intersect.h) already allow a reciprocal that is not correctly rounded. Every CUDA compile uses
-# them: the backend's and the offline nvcc report's (rtlab.backends.nvcc).
-CUDA_PRECISION_OPTIONS = ("--prec-div=false", "--prec-sqrt=false")
 
 
 def rays_per_work_item(variant: Variant) -> int:

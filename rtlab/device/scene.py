@@ -9,7 +9,6 @@ box, lights, materials) go to constant memory.
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,7 +19,7 @@ from ..accel.kdtree import KdBuildParams, KdTree
 from ..accel.ropes import RECORD_FLOAT4S, build_ropes
 from ..accel.tri_data import plucker_tri_data, wald_tri_data
 from ..scene.materials import AMBIENT, BACKGROUND
-from ..scene.model import Camera, Scene
+from ..scene.model import Camera, Scene, scene_fingerprint
 from .kernels import PACKET_WIDTH, SceneFeatures
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
 
@@ -75,21 +74,6 @@ ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_pack
 # not listed reads the vertices and gets a dummy element
 TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.faces),
                      "plucker": lambda scene: plucker_tri_data(scene.vertices, scene.faces)}
-
-
-def scene_fingerprint(scene: Scene) -> bytes:
-    """Digest of what a device upload holds: vertices, faces, material ids and vertex normals
-    (dtype, shape and bytes). The device-scene cache is keyed by it, so an edited scene is uploaded
-    again. sha1 for speed, not security: about 15 ms for the 871K-triangle dragon."""
-    h = hashlib.sha1(usedforsecurity=False)
-    for a in (scene.vertices, scene.faces, scene.material_ids, scene.vertex_normals):
-        if a is None:
-            h.update(b"none|")
-            continue
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}|".encode())
-        h.update(a.reshape(-1).view(np.uint8))
-    return h.digest()
 
 
 def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=None) -> KdTree:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from .layout import HIT_DTYPE
 from .tracing import unpack_hits
 

@@ -264,9 +264,8 @@ def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_
     from) and which functions in it are still the template's stubs; with ``variant`` (and the lab
     ``step`` whose kernel runs), a warning when the kernels it launches call one of them."""
     import os
-    from ..device import kernels as kmod
-    from ..paths import REFERENCE_KERNEL_DIR
-    root = Path(kmod.KERNEL_DIR)
+    from ..paths import REFERENCE_KERNEL_DIR, kernel_dir
+    root = kernel_dir()
     env = os.environ.get("RTLAB_KERNEL_DIR")
     if env and Path(env).resolve() == root.resolve():
         origin = "from $RTLAB_KERNEL_DIR"

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.model import Camera, Scene
+from ..scene.model import Camera, Scene, scene_fingerprint
 
 
 @dataclass
@@ -33,7 +33,6 @@ _CAMERA_HITS_KEPT = 4
 def reference_camera_hits(scene: Scene, camera: Camera):
     """float64 reference hits of the camera's primary rays (the same float32 rays the kernels trace).
     Kept for the last few (geometry, camera) pairs: a bench compares many variants against one view."""
-    from ..device.scene import scene_fingerprint
     from . import reference_trace
     from ..scene.model import camera_rays
     # keyed by content, not id(): an edited scene must not get the hits of its old geometry

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..device.constants import kernel_constant
+from ..kernel_constants import kernel_constant
 from ..scene.materials import AMBIENT, BACKGROUND, MIN_WEIGHT
 from ..scene.model import Camera, Scene
 from .metrics import image_rmse_psnr

@@ -36,7 +36,7 @@ from typing import Callable
 
 import numpy as np
 
-from rtlab.device.constants import kernel_constant
+from rtlab.kernel_constants import kernel_constant
 from rtlab.errors import SceneError
 from rtlab.scene.model import Camera, Light, Material, Scene
 

@@ -181,12 +181,12 @@ class NvccKind(Kind):
         if state is None:
             return Outcome(0.0, "skipped: nvcc (the CUDA toolkit) is not on PATH on this grading machine, so the "
                                 "CUDA kernel was not compiled; the course's grader has it", skipped=True)
-        from ...device import kernels
+        from ...paths import kernel_dir
         from ..regions import stubbed_functions
         spec, variant, path, resources, ptx = state
         problems = []
         wanted = set(spec.params["functions"])
-        stubs = sorted({f for src in [*sorted((kernels.KERNEL_DIR / "shared").glob("*.h")), path]
+        stubs = sorted({f for src in [*sorted((kernel_dir() / "shared").glob("*.h")), path]
                         for f in stubbed_functions(src.read_text()) if f in wanted})
         if stubs:
             problems.append(f"{', '.join(stubs)} still hold{'s' if len(stubs) == 1 else ''} the template's stub")

@@ -10,6 +10,9 @@ from .base import Kind, Outcome
 from .hits import IntersectLoopKind, RenderKind
 from .whitted import WhittedKind
 
+# The kinds whose work a speed test times (each renders, times and compares a result)
+TIMEABLE: dict[str, Kind] = {k.name: k for k in (RenderKind(), IntersectLoopKind(), WhittedKind())}
+
 
 class SpeedKind(Kind):
     """Time against the reference kernel on the same device in the same process (after Stanford
@@ -35,10 +38,9 @@ class SpeedKind(Kind):
 
     def base(self, spec) -> Kind:
         from ...errors import RtlabError
-        from . import KINDS
-        kind = KINDS.get(spec.params["of"])
-        if kind is None or not hasattr(kind, "render"):
-            raise RtlabError(f"speed: cannot time '{spec.params['of']}'; use render, intersect_loop or whitted")
+        kind = TIMEABLE.get(spec.params["of"])
+        if kind is None:
+            raise RtlabError(f"speed: cannot time '{spec.params['of']}'; use {', '.join(TIMEABLE)}")
         return kind
 
     def prepare(self, spec, scene):
@@ -129,19 +131,19 @@ class FreshOutputs:
 
 class use_kernel_tree:
     """Compile from another kernel tree in this process (the reference, beside the submission that
-    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.device.kernels.include_dirs)."""
+    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.paths.include_dirs)."""
 
     def __init__(self, root):
         self.root = Path(root)
 
     def __enter__(self):
-        from ...device import kernels
-        self.saved = kernels.use_kernel_dir(self.root)
+        from ...paths import use_kernel_dir
+        self.saved = use_kernel_dir(self.root)
         return self
 
     def __exit__(self, *exc):
-        from ...device import kernels
-        kernels.KERNEL_DIR = self.saved
+        from ...paths import use_kernel_dir
+        use_kernel_dir(self.saved)
 
 
 def speed_score(ratio: float, tol: dict) -> tuple[float, str]:

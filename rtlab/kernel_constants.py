@@ -7,7 +7,7 @@ constants of the host-built structures (``BVH_LEAF_BITS``, ``PBVH_TRI_ROWS``...)
 a constant expression (numbers, other such names, arithmetic) once, on first use, so that a code
 changed in a header changes on the host too: no table to keep in sync by hand.
 
-    from rtlab.device.constants import kernel_constant
+    from rtlab.kernel_constants import kernel_constant
     kernel_constant("RT_TRAVERSAL_BVH")      # 5
 
 Read from the reference kernels (``rtlab.paths.REFERENCE_KERNEL_DIR``), not a kernel tree swapped in
@@ -22,8 +22,8 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
-from ..errors import RtlabError
-from ..paths import REFERENCE_KERNEL_DIR
+from .errors import RtlabError
+from .paths import REFERENCE_KERNEL_DIR
 
 # The headers whose #defines the host reads (kernels/shared/)
 HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh_packet.h",

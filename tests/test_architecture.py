@@ -1,0 +1,346 @@
+"""The shape of the code, checked: no import cycles (modules, and packages as layers), modules of a
+readable size, constants the host and the kernels share read from one place, the port layer the
+only place that tells CUDA from OpenCL, kernel pairs that declare the same kernels, and the
+README's layout naming the tree as it is."""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtlab.paths import PACKAGE_DIR, PROJECT_DIR, REFERENCE_KERNEL_DIR
+
+SHARED = REFERENCE_KERNEL_DIR / "shared"
+MODULE_LINES = 400
+PORT_LAYER = {"rt_port.h", "rt_memory.h", "rt_lanes.h"}
+
+
+# ---- imports -----------------------------------------------------------------------------------
+
+def _modules() -> dict[str, tuple[Path, bool]]:
+    """module name -> (file, is a package's __init__)"""
+    out = {}
+    for path in PACKAGE_DIR.rglob("*.py"):
+        parts = list(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts)
+        is_init = parts[-1] == "__init__"
+        out[".".join(parts[:-1] if is_init else parts)] = (path, is_init)
+    return out
+
+
+def _imports(modules, lazy: bool) -> dict[str, set[str]]:
+    """module -> the rtlab modules it imports: at import time only (module level, class bodies), or
+    with ``lazy`` also those imported inside functions. The root package, which every import of a
+    submodule runs first, is left out."""
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for name, (path, is_init) in modules.items():
+        package = name.split(".") if is_init else name.split(".")[:-1]
+        nodes: list[ast.AST] = []
+
+        def visit(node):
+            for child in ast.iter_child_nodes(node):
+                if lazy or not isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                    nodes.append(child)
+                    visit(child)
+
+        visit(ast.parse(path.read_text()))
+        for node in nodes:
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    base = ".".join(package[:len(package) - node.level + 1] + ([node.module] if node.module else []))
+                targets = [base] + [f"{base}.{a.name}" for a in node.names]
+            else:
+                continue
+            for target in targets:
+                parts = target.split(".")
+                found = next((".".join(parts[:i]) for i in range(len(parts), 0, -1) if ".".join(parts[:i]) in modules),
+                             None)
+                if found is None or found == name or found == "rtlab":
+                    continue
+                graph[name].add(found)
+                for i in range(2, len(found.split("."))):         # a.b.c runs a.b's __init__ first
+                    parent = ".".join(found.split(".")[:i])
+                    if parent in modules and not name.startswith(parent + "."):
+                        graph[name].add(parent)
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one node (Tarjan)."""
+    index, low, on_stack, stack, out = {}, {}, set(), [], []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _layer(module: str) -> str:
+    """rtlab.device.scene -> rtlab.device: the package a module belongs to (a top-level module is its own)."""
+    return ".".join(module.split(".")[:2])
+
+
+def test_no_module_imports_itself_back_at_import_time():
+    graph = _imports(_modules(), lazy=False)
+    assert not _cycles(graph), f"import cycles at import time: {_cycles(graph)}"
+
+
+def test_packages_form_layers_even_counting_imports_inside_functions():
+    """Packages (device, accel, backends, ...) import each other in one direction only: with the
+    imports inside functions counted too, no package reaches back to one that reaches it."""
+    graph = _imports(_modules(), lazy=True)
+    layers: dict[str, set[str]] = {}
+    for module, targets in graph.items():
+        layers.setdefault(_layer(module), set()).update(_layer(t) for t in targets if _layer(t) != _layer(module))
+    assert not _cycles(layers), f"packages importing each other: {_cycles(layers)}"
+    # the layers this project means to have, bottom to top
+    assert not layers["rtlab.backends"] & {"rtlab.device", "rtlab.accel", "rtlab.benches", "rtlab.labs", "rtlab.cli"}
+    assert not layers["rtlab.reference"] & {"rtlab.device", "rtlab.backends", "rtlab.accel"}, \
+        "the float64 reference must not use the code it checks"
+    assert not layers["rtlab.scene"] - {"rtlab.errors", "rtlab.paths", "rtlab.kernel_constants"}
+
+
+def test_the_import_graph_sees_a_cycle():
+    """The check above can fail: two modules importing each other are found."""
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+# ---- module size -------------------------------------------------------------------------------
+
+def test_modules_stay_readable():
+    """No module of rtlab over MODULE_LINES lines, unless its docstring says why it is one file
+    ("Why one file:")."""
+    long = []
+    for path in sorted(PACKAGE_DIR.rglob("*.py")):
+        n = len(path.read_text().splitlines())
+        doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+        if n > MODULE_LINES and "Why one file:" not in doc:
+            long.append(f"{path.relative_to(PACKAGE_DIR.parent)} ({n} lines)")
+    assert not long, "split by kind, or say at the top why it is one file: " + ", ".join(long)
+
+
+# ---- constants shared with the kernels ---------------------------------------------------------
+
+def _header_defines() -> dict[str, str]:
+    """#define NAME value of the shared headers, read here with a plain regex (independent of
+    rtlab.kernel_constants' parser)."""
+    out = {}
+    for header in SHARED.glob("*.h"):
+        for name, value in re.findall(r"^#define (\w+) +\(?(-?\d+)\)?(?=\s|$)", header.read_text(), re.M):
+            out.setdefault(name, value)
+    return out
+
+
+@pytest.mark.parametrize("table, prefix", [("TRAVERSALS", "RT_TRAVERSAL_"), ("INTERSECTIONS", "RT_ISECT_"),
+                                           ("NODE_MEMORY", "RT_MEM_"), ("CONST_MEMORY", "RT_MEM_"),
+                                           ("RAY_MEMORY", "RT_MEM_"), ("RAY_ORDERS", "RT_ORDER_")])
+def test_variant_codes_are_the_headers(table, prefix):
+    from rtlab.device import kernels
+    defines = _header_defines()
+    names = getattr(kernels, table)
+    for name, code in names.items():
+        define = prefix + name.upper().replace("-", "_")
+        assert define in defines, f"{table}[{name!r}]: no #define {define} in kernels/shared"
+        assert code == int(defines[define]), f"{table}[{name!r}] = {code}, but {define} is {defines[define]}"
+    if prefix != "RT_MEM_":        # every traversal, test and order the kernels know has a name
+        codes = {d for d in defines if d.startswith(prefix)}
+        assert codes == {prefix + n.upper().replace("-", "_") for n in names}
+
+
+def test_layout_constants_are_the_headers():
+    from rtlab.accel import bvh, bvh_packet, kdtree, ropes, tri_data
+    from rtlab.device import kernels, whitted
+    from rtlab.reference import whitted as reference_whitted
+    from rtlab.scene.materials import MIN_WEIGHT
+    d = {k: int(v) for k, v in _header_defines().items()}
+    assert (bvh.LEAF_BITS, bvh.NODE_FLOAT4S) == (d["BVH_LEAF_BITS"], d["BVH_NODE_STRIDE"])
+    assert (bvh_packet.LEAF_BITS, bvh_packet.TRI_ROWS, bvh_packet.EMPTY) == (d["PBVH_LEAF_BITS"], d["PBVH_TRI_ROWS"],
+                                                                            d["PBVH_EMPTY"])
+    assert (kernels.PACKET_LANES, kernels.PACKET_WIDTH) == (d["RT_LANES"], d["RT_PACKET_WIDTH"])
+    assert kdtree.LEAF_TAG == d["KD_LEAF"] and ropes.RECORD_FLOAT4S == d["KD_ROPES_LEAF_STRIDE"]
+    assert (tri_data.WALD_ROWS, tri_data.PLUCKER_ROWS) == (d["RT_WALD_ROWS"], d["RT_PLUCKER_ROWS"])
+    assert whitted.NO_RAY == reference_whitted.NO_RAY == d["RT_NO_RAY"]
+    text = (SHARED / "rt_whitted.h").read_text()
+    num, den = re.search(r"#define RT_MIN_WEIGHT \((\d+\.\d*)f / (\d+\.\d*)f\)", text).groups()
+    assert MIN_WEIGHT == float(num) / float(den)
+
+
+def test_constant_parser_reads_expressions_and_defaults():
+    from rtlab.kernel_constants import parse_defines
+    text = """#ifndef RT_X_H
+#define RT_X_H
+#define A 3              /* a comment */
+#define B (2 * A + 1)
+#define C (1.0f / 4.0f)
+#ifndef D
+#define D 7
+#endif
+#if A == 3
+#define E 1               /* a variant's, not a constant */
+#endif
+#define F(x) ((x) + 1)
+#define G __ldg
+#endif
+"""
+    assert parse_defines(text) == {"A": 3, "B": 7, "C": 0.25, "D": 7}
+
+
+KERNEL_OF_VARIANT = """
+#include "rt_port.h"
+RT_KERNEL void variant_codes(RT_GLOBAL int *out)
+{
+    out[0] = RT_TRAVERSAL == %s;
+    out[1] = RT_ISECT == %s;
+    out[2] = RT_NODE_MEM == %s;
+    out[3] = RT_RAY_ORDER == %s;
+}
+"""
+
+
+@pytest.mark.parametrize("traversal, isect, memory, order", [("stack", "moller", "global", "rows"),
+                                                             ("bvh-packet", "watertight", "texture", "morton"),
+                                                             ("ropes", "plucker", "global", "rows"),
+                                                             ("restart", "wald", "texture", "rows")])
+def test_a_variant_compiles_as_its_own_name(backend, tmp_path, traversal, isect, memory, order):
+    """build_defines sets what the kernel tests by name: a variant's traversal, test, placement and
+    order arrive as the #define of the same name (a swapped code would fail here)."""
+    from rtlab.device.kernels import SceneFeatures, Variant, build_defines
+    variant = Variant(traversal=traversal, intersection=isect, node_memory=memory, ray_order=order)
+    names = ["RT_TRAVERSAL_" + traversal.upper().replace("-", "_"), "RT_ISECT_" + isect.upper(),
+             "RT_MEM_" + memory.upper(), "RT_ORDER_" + order.upper()]
+    src = tmp_path / ("codes" + backend.extension)
+    src.write_text(KERNEL_OF_VARIANT % tuple(names))
+    out = backend.empty(16)
+    backend.compile(src, build_defines(variant, SceneFeatures())).launch("variant_codes", (1,), (1,), [out])
+    assert backend.to_host(out, np.int32, 4).tolist() == [1, 1, 1, 1]
+
+
+# ---- the kernels' sources ----------------------------------------------------------------------
+
+def _kernel_names(path: Path) -> list[str]:
+    return sorted(re.findall(r"^(?:RT_KERNEL|__kernel|extern \"C\" __global__)\s+void\s+(\w+)\s*\(",
+                             path.read_text(), re.M))
+
+
+def _pairs():
+    steps = sorted(p.stem for p in (REFERENCE_KERNEL_DIR / "cuda").glob("*.cu"))
+    harness = PACKAGE_DIR / "labs" / "harness"
+    return ([(REFERENCE_KERNEL_DIR / "cuda" / f"{s}.cu", REFERENCE_KERNEL_DIR / "opencl" / f"{s}.cl") for s in steps]
+            + [(harness / "camera_rays.cu", harness / "camera_rays.cl")])
+
+
+@pytest.mark.parametrize("cu, cl", _pairs(), ids=lambda p: p.stem)
+def test_each_pair_declares_the_same_kernels(cu, cl):
+    assert _kernel_names(cu), f"no kernel found in {cu.name}"
+    assert _kernel_names(cu) == _kernel_names(cl), f"{cu.name} and {cl.name} declare different kernels"
+
+
+def test_only_the_port_layer_tells_the_languages_apart():
+    """__CUDACC__ (and OpenCL's extension macros) appear only in rt_port.h, rt_memory.h and rt_lanes.h."""
+    split = re.compile(r"__CUDACC__|__CUDA_ARCH__|__OPENCL_VERSION__|cl_khr_\w+")
+    outside = [f"{h.name}:{n}" for h in sorted(SHARED.glob("*.h")) if h.name not in PORT_LAYER
+               for n, line in enumerate(h.read_text().splitlines(), 1) if split.search(line)]
+    assert not outside, f"language split outside the port layer: {outside}"
+
+
+def _functions(text: str):
+    """(name, parameter text) of every RT_FN definition."""
+    for m in re.finditer(r"^RT_FN\s+[\w\s\*]+?\b(\w+)\s*\(([^)]*)\)\s*\{", text, re.M):
+        yield m.group(1), " ".join(m.group(2).split())
+
+
+def test_scene_params_come_first():
+    late = [f"{h.name}:{name}" for h in sorted(SHARED.glob("*.h")) for name, params in _functions(h.read_text())
+            if "RT_SCENE_PARAMS" in params and not params.startswith("RT_SCENE_PARAMS")]
+    assert not late, f"functions taking RT_SCENE_PARAMS after other parameters: {late}"
+
+
+LOADERS = {"load_node": "nodes", "load_node_data": "node_data", "load_object": "objects", "load_tri_vertex": "tris",
+           "load_tri_data": "tri_data", "load_tri_normal": "normals", "load_tri_material": "tri_materials"}
+
+
+def test_loaders_are_given_their_buffer():
+    """Every scene read names the buffer it reads (load_node(nodes, i), as Warp's bvh_load_node)."""
+    wrong = []
+    for path in sorted(SHARED.glob("*.h")) + sorted(REFERENCE_KERNEL_DIR.glob("*/*.c[lu]")):
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            for loader, buffer in LOADERS.items():
+                for m in re.finditer(rf"\b{loader}\(\s*(\w+)\s*,", line):
+                    if m.group(1) != buffer:
+                        wrong.append(f"{path.name}:{n}: {loader}({m.group(1)}, ...)")
+                if re.search(rf"\b{loader}\(\s*[^,()]*\)", line):
+                    wrong.append(f"{path.name}:{n}: {loader} without its buffer")
+    assert not wrong, wrong
+
+
+# ---- the README's layout -----------------------------------------------------------------------
+
+def _readme_layout() -> list[str]:
+    text = (PROJECT_DIR / "README.md").read_text()
+    block = re.search(r"## Layout\s+```\n(.*?)```", text, re.S).group(1)
+    entries, parent = [], ""
+    for line in block.splitlines():
+        name = line.split()[0] if line.strip() else ""
+        indent = len(line) - len(line.lstrip())
+        if not name or indent > 4:          # an entry's second line
+            continue
+        if indent == 0:
+            parent = name if name.endswith("/") else ""
+            entries.append(name)
+        else:
+            entries.append(parent + name)
+    return entries
+
+
+def test_readme_layout_names_the_tree():
+    """Every folder and file the README's layout names exists, and every package of rtlab and every
+    module at its top is named there."""
+    entries = _readme_layout()
+    missing = [e for e in entries if not (PROJECT_DIR / e.rstrip("/")).exists()]
+    assert not missing, f"README's layout names what is not there: {missing}"
+    named = {e.rstrip("/") for e in entries}
+    packages = {f"rtlab/{p.parent.name}" for p in PACKAGE_DIR.glob("*/__init__.py")}
+    modules = {f"rtlab/{p.name}" for p in PACKAGE_DIR.glob("*.py") if not p.name.startswith("__")}
+    assert not (packages | modules) - named, f"not in README's layout: {sorted((packages | modules) - named)}"
+
+
+def test_readme_layout_lists_the_layers_in_order():
+    """The README lists rtlab's packages so that each imports (inside functions too) only what is
+    listed above it: its order is the layering."""
+    order = [e.rstrip("/").removesuffix(".py").replace("/", ".") for e in _readme_layout()
+             if e.startswith("rtlab/") and e != "rtlab/"]     # the root package: the public API, above all
+    graph = _imports(_modules(), lazy=True)
+    above: set[str] = set()
+    wrong = []
+    for layer in order:
+        uses = {_layer(t) for m, ts in graph.items() if _layer(m) == layer for t in ts} - {layer}
+        wrong += [f"{layer} uses {u}, listed below it" for u in sorted(uses - above)]
+        above.add(layer)
+    assert not wrong, wrong
