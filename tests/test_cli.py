@@ -1,6 +1,7 @@
 """The `rtlab` command: the main job works, and bad input gets one clear line and a non-zero exit."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -9,9 +10,9 @@ import pytest
 from PIL import Image
 
 
-def run_cli(*args, cwd=None):
+def run_cli(*args, cwd=None, env=None):
     proc = subprocess.run([sys.executable, "-m", "rtlab", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
+                          cwd=cwd, timeout=600, env={**os.environ, **(env or {})})
     return proc.returncode, proc.stdout, proc.stderr
 
 
@@ -33,9 +34,18 @@ def test_render_default_scene_writes_png(tmp_path):
 
 
 def test_info_lists_backends():
-    code, out, err = run_cli("info")
+    """Each backend's row says what backend_status says: its devices as ok, or why it is unavailable
+    (in a terminal wide enough that rich does not fold the cells); then the lab steps."""
+    from rtlab.backends import backend_status
+    from rtlab.device.kernels import lab_steps
+    code, out, err = run_cli("info", env={"COLUMNS": "500"})
     assert code == 0, err
-    assert "opencl" in out and "cuda" in out
+    cells = [[c.strip() for c in line.split("│")[1:-1]] for line in out.splitlines() if line.startswith("│")]
+    for row in backend_status():
+        shown = next((c for c in cells if c[:2] == [row["backend"], row["id"]]), None)
+        assert shown is not None, f"no row for {row['backend']} {row['id']}:\n{out}"
+        assert shown[3] == row["device"] and shown[4] == ("ok" if row["ok"] else row["why"]), shown
+    assert f"lab steps with kernels: {', '.join(lab_steps())}" in out
 
 
 def test_build_prints_table2_row():

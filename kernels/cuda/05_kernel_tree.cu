@@ -1,6 +1,6 @@
 // Lab step 05: reflection and refraction rays as a kernel tree (§3.2.2, Table 5) (CUDA). Every
 // tree node is one launch of trace_reflection or trace_refraction over the records of the level
-// above; rtlab/whitted.py walks the tree depth-first. The per-ray work is shared with OpenCL in
+// above; rtlab/device/whitted_frames.py walks the tree depth-first. The per-ray work is shared with OpenCL in
 // kernels/shared/rt_whitted.h; this file holds only what CUDA spells its own way.
 #include "rt_whitted.h"
 #if RT_WAVEFRONT

@@ -1,6 +1,6 @@
 // Lab step 05: reflection and refraction rays as a kernel tree (§3.2.2, Table 5) (OpenCL). Every
 // tree node is one launch of trace_reflection or trace_refraction over the records of the level
-// above; rtlab/whitted.py walks the tree depth-first. The per-ray work is shared with CUDA in
+// above; rtlab/device/whitted_frames.py walks the tree depth-first. The per-ray work is shared with CUDA in
 // kernels/shared/rt_whitted.h; this file holds only what OpenCL spells its own way: constant-memory
 // arguments (last, in the order frame, lights, materials) and the work-item index.
 #include "rt_whitted.h"

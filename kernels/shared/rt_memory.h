@@ -14,7 +14,7 @@
  *                     a dummy element for tests that need none (Moller-Trumbore)
  *   normals    float4 three vertex normals per triangle (only read when RT_SMOOTH_NORMALS)
  *   tri_materials int material id per triangle
- * rtlab/device_scene.py uploads them in this order.
+ * rtlab/device/scene.py uploads them in this order.
  *
  * RT_NODE_MEM == RT_MEM_TEXTURE reads all seven through the texture path instead, as the paper does
  * for the node, object, vertex and normal lists (§3.1.1): CUDA texture objects (tex1Dfetch) and

@@ -9,7 +9,7 @@
  * (Hit *hit). Entry kernels (kernels/cuda/, kernels/opencl/) spell the rest their own way.
  *
  * Pitfall: float3 is 12 bytes in CUDA and 16 in OpenCL. It is used only in registers, never in a
- * buffer shared with the host (those are float4, mirrored by numpy dtypes in rtlab/layout.py).
+ * buffer shared with the host (those are float4, mirrored by numpy dtypes in rtlab/device/layout.py).
  */
 #ifndef RT_PORT_H
 #define RT_PORT_H

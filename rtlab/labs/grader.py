@@ -16,8 +16,9 @@ How a grading run goes:
    the submission's tree, a memory limit, a setup limit per kernel compile and its own run limit.
    A compile error (file and line of the student's source), a crash, a hang or a memory blow-up
    costs that test only. The whole run has a deadline: tests not done by then score 0.
-4. Speed tests run last and alone, against the reference kernels (a copy in a folder of their own),
-   every timed launch checked.
+4. Speed tests run last and alone, against the reference kernels (a copy in a folder of their own):
+   pairs of launches in random order, every timed launch checked, scored by the median of the
+   pairs' time ratios (rtlab.labs.checks.speed).
 5. ``on_update(report)`` gets the report after every test (pending tests at 0), so results.json
    can be written as the run goes and a run killed from outside still reports.
 """
