@@ -16,9 +16,11 @@ from .common import (append_markdown, backend_list, block_shape, command_line, c
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: the paper's tables on the current device.")
 
-BACKENDS_HELP = "comma-separated: opencl, cuda, auto"
-DEVICE_HELP = "device name substring (OpenCL)"
-MD_HELP = "append the table as markdown to this file"
+# Options every bench takes alike
+BACKENDS = typer.Option("auto", help="comma-separated: opencl, cuda, auto")
+DEVICE = typer.Option(None, help="device name substring (OpenCL)")
+CHECK = typer.Option(True, help="error against the float64 reference")
+MD = typer.Option(None, help="append the tables as markdown to this file")
 CPU_NOTE = "CPU device: times are not comparable with the paper's GPU figures."
 
 
@@ -48,6 +50,10 @@ def bench_scenes(scenes: str, views: str, size: int):
     return out
 
 
+def repeats_option(default: int):
+    return typer.Option(default, min=1, help="timed launches; the median is reported")
+
+
 def cpu_note(backends) -> None:
     if any(not be.is_gpu() for be in backends):
         console.print(CPU_NOTE)
@@ -56,15 +62,15 @@ def cpu_note(backends) -> None:
 @bench_app.command("primary")
 def bench_primary(ctx: typer.Context,
                   scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
-                  backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                  device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                  backends: str = BACKENDS,
+                  device: Optional[str] = DEVICE,
                   size: int = typer.Option(1024, min=1, help="image width = height"),
                   views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
-                  repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
-                  check: bool = typer.Option(True, help="error against the float64 reference"),
+                  repeats: int = repeats_option(25),
+                  check: bool = CHECK,
                   traversal: str = typer.Option("stack"), isect: str = typer.Option("moller"),
                   block: str = typer.Option("32x4"),
-                  md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+                  md: Optional[Path] = MD):
     """Primary rays with simple shading (the paper's Table 4 setting): time, Mrays/s, error."""
     from ..benches.primary import bench_render, primary_markdown, primary_tables
     from ..device.kernels import Variant
@@ -87,15 +93,15 @@ def bench_rays(ctx: typer.Context,
                kind: str = typer.Option("primary", help="ray kinds, comma-separated: primary, diffuse"),
                views: str = typer.Option("bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,"
                                          "conference/inside", help="benchmark views (scene/view), comma-separated"),
-               backends: str = typer.Option("auto", help=BACKENDS_HELP),
-               device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+               backends: str = BACKENDS,
+               device: Optional[str] = DEVICE,
                sizes: str = typer.Option("1024", help="image sides, comma-separated"),
                traversals: str = typer.Option("bvh,stack", help="traversals to time, comma-separated"),
                isect: str = typer.Option("moller"),
                block: str = typer.Option("8x16", help="block of the image-shaped launches (primary rays)"),
                repeats: int = typer.Option(22, help="timed launches; the median is reported"),
                render: bool = typer.Option(True, help="also time the render kernel on primary views"),
-               md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+               md: Optional[Path] = MD):
     """Rays through the trace API on the peers' benchmark views (../shared/bench): kernel time, Mrays/s,
     the error against the float64 reference, the render kernel on the same camera, the best peer."""
     from ..benches.rays import bench_rays as bench, make_rays, rays_markdown, rays_tables, table_rows
@@ -128,7 +134,7 @@ def bench_cpu(ctx: typer.Context,
               threads: Optional[int] = typer.Option(None, help="PoCL worker threads (POCL_MAX_PTHREAD_COUNT; "
                                                                "default: one a core)"),
               rounds: int = typer.Option(7, help="alternating timed rounds; medians are reported"),
-              md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+              md: Optional[Path] = MD):
     """rtlab on PoCL against Embree (embreex, one thread), the same rays in the same run: Mrays/s of
     each, the ratio, and each one's error against the float64 reference."""
     if threads is not None:
@@ -159,8 +165,8 @@ def bench_cpu(ctx: typer.Context,
 
 @bench_app.command("robustness")
 def bench_robustness(ctx: typer.Context,
-                     backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                     device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                     backends: str = BACKENDS,
+                     device: Optional[str] = DEVICE,
                      isects: Optional[str] = typer.Option(None, help="tests (default: every one)"),
                      traversals: Optional[str] = typer.Option(None, help="traversals (default: every one)"),
                      families: str = typer.Option("1,2,3,4,5,6,7,8,9,10,11,12",
@@ -168,7 +174,7 @@ def bench_robustness(ctx: typer.Context,
                      size: str = typer.Option("bench", help="'bench' (127² stairs, 10^5 rays) or 'test' (small)"),
                      conservative: str = typer.Option("default", help="RT_CONSERVATIVE: default, 0, 1 or 0,1"),
                      detail: bool = typer.Option(False, help="one row per case instead of per family"),
-                     md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+                     md: Optional[Path] = MD):
     """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, false hits, NaN t, crashes
     and hangs of every triangle test x traversal against the float64 reference."""
     from ..benches.tables import report_markdown

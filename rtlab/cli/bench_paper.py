@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from ..errors import RtlabError
-from .bench import (BACKENDS_HELP, DEVICE_HELP, MD_HELP, bench_app, bench_scenes, cpu_note)
+from .bench import BACKENDS, CHECK, DEVICE, MD, bench_app, bench_scenes, cpu_note, repeats_option
 from .common import (append_markdown, backend_list, block_shape, block_shapes, command_line, console, int_list,
                      kd_tree, load_scene, names, print_tables)
 
@@ -17,15 +17,15 @@ from .common import (append_markdown, backend_list, block_shape, block_shapes, c
 @bench_app.command("intersect")
 def bench_intersect(ctx: typer.Context,
                     scenes: str = typer.Option("bunny,sponza", help="comma-separated presets"),
-                    backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                    device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                    backends: str = BACKENDS,
+                    device: Optional[str] = DEVICE,
                     isects: str = typer.Option("moller,wald,plucker,watertight", help="tests to time"),
                     size: int = typer.Option(1024, min=1, help="rays: width = height of the camera (paper: 1024)"),
                     triangles: int = typer.Option(1000, min=1, help="triangles in the loop (paper: the first 1000)"),
-                    repeats: int = typer.Option(5, min=1, help="timed launches; the median is reported"),
+                    repeats: int = repeats_option(5),
                     render_size: int = typer.Option(1024, min=0, help="in-render effect at this size; 0: skip it"),
-                    check: bool = typer.Option(True, help="error against the float64 reference"),
-                    md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+                    check: bool = CHECK,
+                    md: Optional[Path] = MD):
     """The paper's Table 3: each triangle test on the first 1000 triangles (time, registers, bytes per
     triangle, error), then in the renderer (Mrays/s and error)."""
     from ..benches.intersect import bench_table3, table3_markdown, table3_tables
@@ -47,13 +47,13 @@ def bench_shading(ctx: typer.Context,
                   bounce_scenes: str = typer.Option("sponza,kitchen", help="Table 5 bounce rows (presets)"),
                   bounces: str = typer.Option("1,2,3", help="bounce depths of the bounce rows"),
                   special_bounces: int = typer.Option(3, min=-1, help="depth of the specialised-vs-general rows; -1: skip"),
-                  backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                  device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                  backends: str = BACKENDS,
+                  device: Optional[str] = DEVICE,
                   size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                   repeats: int = typer.Option(10, min=1, help="timed frames; the median is reported"),
                   check_size: int = typer.Option(128, min=0, help="error against the float64 reference at this size; 0: skip"),
                   materials: str = typer.Option("paper", help="materials of the bounce rows (rtlab.scene.materials)"),
-                  md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
+                  md: Optional[Path] = MD):
     """The paper's Table 5 (shadows one-pass vs two-pass, 1-3 bounces) and specialised vs general kernels."""
     from ..benches.shading import (NOTE, bench_bounces, bench_shadows, bench_specialisation, table5_markdown,
                                    table5_tables)
@@ -85,16 +85,16 @@ def bench_shading(ctx: typer.Context,
 @bench_app.command("traversal")
 def bench_traversal(ctx: typer.Context,
                     scenes: str = typer.Option("bunny,sponza,kitchen,dragon,conference", help="comma-separated presets"),
-                    backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                    device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                    backends: str = BACKENDS,
+                    device: Optional[str] = DEVICE,
                     size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                     views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
-                    repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
-                    check: bool = typer.Option(True, help="error against the float64 reference"),
+                    repeats: int = repeats_option(25),
+                    check: bool = CHECK,
                     traversals: str = typer.Option("stack,packet,restart,shortstack,ropes,bvh"),
                     short_stack: int = typer.Option(4, min=1, help="short-stack entries"),
                     isect: str = typer.Option("moller"), block: str = typer.Option("32x4"),
-                    md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+                    md: Optional[Path] = MD):
     """The paper's Table 4: every traversal variant (and the BVH): fps, Mrays/s, registers,
     occupancy and error, beside the paper's figures."""
     from ..benches.traversal import bench_table4, resources_text, table4_markdown, table4_tables
@@ -123,15 +123,15 @@ def bench_traversal(ctx: typer.Context,
 @bench_app.command("memory")
 def bench_memory(ctx: typer.Context,
                  scenes: str = typer.Option("bunny,dragon", help="comma-separated presets"),
-                 backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                 device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                 backends: str = BACKENDS,
+                 device: Optional[str] = DEVICE,
                  size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
                  views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill"),
-                 repeats: int = typer.Option(25, min=1, help="timed launches; the median is reported"),
-                 check: bool = typer.Option(True, help="error against the float64 reference"),
+                 repeats: int = repeats_option(25),
+                 check: bool = CHECK,
                  placements: str = typer.Option("global,texture,const-global,ray-shared,ray-indexed,paper",
                                                 help="placements (rtlab.benches.memory.PLACEMENTS)"),
-                 md: Optional[Path] = typer.Option(None, help=MD_HELP)):
+                 md: Optional[Path] = MD):
     """Memory placement (§3.1.1, lab step 01): textures vs global loads, constants in constant vs global
     memory, the ray in registers / shared memory / indexed arrays; time, registers, occupancy, error."""
     from ..benches.memory import PLACEMENTS, bench_memory as bench, compiler_report, memory_markdown, memory_tables
@@ -153,10 +153,10 @@ def bench_memory(ctx: typer.Context,
 @bench_app.command("launch")
 def bench_launch(ctx: typer.Context,
                  scene: str = typer.Option("bunny", help="preset"),
-                 backends: str = typer.Option("auto", help=BACKENDS_HELP),
-                 device: Optional[str] = typer.Option(None, help=DEVICE_HELP),
+                 backends: str = BACKENDS,
+                 device: Optional[str] = DEVICE,
                  size: int = typer.Option(1024, min=1, help="image width = height (paper: 1024)"),
-                 repeats: int = typer.Option(10, min=1, help="timed launches; the median is reported"),
+                 repeats: int = repeats_option(10),
                  check: bool = typer.Option(True, help="error of the default launch against the float64 reference"),
                  blocks: Optional[str] = typer.Option(None, help="block shapes XxY (default: Fig. 4's set)"),
                  orders: str = typer.Option("rows,morton", help="ray orders within a block"),
@@ -164,7 +164,7 @@ def bench_launch(ctx: typer.Context,
                  caps: str = typer.Option("0,64,48,40,32,24", help="Fig. 5 register caps (0: none)"),
                  figures: str = typer.Option("4,5", help="which figures: 4, 5 or 4,5"),
                  out: Path = typer.Option(Path("."), help="folder for fig4.png / fig5.png"),
-                 md: Optional[Path] = typer.Option(None, help="append the tables as markdown to this file")):
+                 md: Optional[Path] = MD):
     """Block size (Fig. 4) with pixel vs Morton ray order, and registers/occupancy (Fig. 5): register caps
     and (CUDA) occupancy held down by unused shared memory. Every launch checked against the default's hits."""
     from ..benches.launch import (FIG4_BLOCKS, INTRO, block_sweep, launch_markdown, launch_tables, occupancy_sweep,
@@ -206,7 +206,7 @@ def bench_paper(ctx: typer.Context,
                 sections: str = typer.Option("table2,table3,table4,table5,memory,fig4,fig5",
                                              help="sections to run, in this order"),
                 repeats: int = typer.Option(10, min=1, help="timed launches per variant; the median is reported"),
-                check: bool = typer.Option(True, help="error against the float64 reference"),
+                check: bool = CHECK,
                 budget_s: Optional[float] = typer.Option(None, min=0, help="start no section after this many seconds"),
                 force: bool = typer.Option(False, help="rerun sections finished by an earlier run")):
     """The paper's evaluation on the current device: Tables 2-5, Figs. 4-5 and §3.1.1's memory placement,

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .ctokens import Token, tokenize
+from .ctokens import Token, directive_at, tokenize
 
 # --------------------------------------------------------------------------------------------------
 # a small preprocessor: which code a set of defines leaves active, and who calls whom
@@ -207,12 +207,9 @@ class Preprocessor:
         i, n = 0, len(toks)
         while i < n:
             t = toks[i]
-            if t.bol and t.kind == "punct" and t.value == "#":
-                j = i + 1
-                while j < n and not toks[j].bol:
-                    j += 1
-                rest = toks[i + 1:j]
-                i = j
+            found = directive_at(toks, i)
+            if found:
+                rest, i = found
                 name = rest[0].text if rest and rest[0].kind == "ident" else ""
                 args = rest[1:]
                 if name in ("if", "ifdef", "ifndef"):

@@ -172,17 +172,27 @@ class Directive:
     hash: Token = None     # the '#' (or '%:')
 
 
+def directive_at(toks: list[Token], i: int) -> tuple[list[Token], int] | None:
+    """At a '#' that begins a line: (the directive's tokens after it, the index past its line); None
+    for any other token."""
+    t = toks[i]
+    if not (t.bol and t.kind == "punct" and t.value == "#"):
+        return None
+    j = i + 1
+    while j < len(toks) and not toks[j].bol:
+        j += 1
+    return toks[i + 1:j], j
+
+
 def split_directives(toks: list[Token]) -> tuple[list[Directive], list[Token]]:
     """(directives, the other tokens) of a token list, in order within each."""
     directives, code = [], []
     i, n = 0, len(toks)
     while i < n:
         t = toks[i]
-        if t.bol and t.kind == "punct" and t.value == "#":
-            j = i + 1
-            while j < n and not toks[j].bol:
-                j += 1
-            rest = toks[i + 1:j]
+        found = directive_at(toks, i)
+        if found:
+            rest, j = found
             if not rest:
                 directives.append(Directive("", t.line, [], t))
             elif rest[0].kind == "ident":
