@@ -25,12 +25,12 @@ import numpy as np
 
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
-from rtlab.reference import compare_hits, reference_trace
 from rtlab.device.rendering import render
-from rtlab.scene import load_scene
-from rtlab.scene.presets import bench_camera, bench_view_names
 from rtlab.device.tracing import trace
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.scene import load_scene
 from rtlab.scene.model import camera_rays
+from rtlab.scene.presets import bench_camera, bench_view_names
 
 TESTS = ("moller", "watertight")
 

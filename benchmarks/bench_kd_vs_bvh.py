@@ -24,8 +24,8 @@ from rtlab.accel.kdtree import KdBuildParams, build_kdtree, kd_stats
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
 from rtlab.device.rendering import render
-from rtlab.scene.model import Scene
 from rtlab.device.scene import device_scene
+from rtlab.scene.model import Scene
 
 BUILDS = {"kd, no flat cells": KdBuildParams(flat_cells=False), "kd, flat cells": KdBuildParams()}
 

@@ -17,9 +17,9 @@ import numpy as np
 
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
+from rtlab.device.whitted import render_whitted
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
-from rtlab.device.whitted import render_whitted
 
 
 def parse_config(text: str):

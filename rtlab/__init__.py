@@ -18,8 +18,8 @@ from .paths import ensure_user_cache  # noqa: E402
 
 ensure_user_cache()    # without a writable home, caches go to the temporary directory
 
-from .errors import RtlabError  # noqa: E402
 from .device.kernels import Variant  # noqa: E402
+from .errors import RtlabError  # noqa: E402
 
 __version__ = "0.1.0"
 

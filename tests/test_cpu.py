@@ -16,12 +16,12 @@ import pytest
 import rtlab
 from rtlab.accel.bvh import LEAF_BITS, build_bvh
 from rtlab.accel.bvh_packet import EMPTY, TRI_ROWS, node_rows, packet_node_data
-from rtlab.reference.check import check_render
-from rtlab.errors import VariantError
 from rtlab.device.kernels import PACKET_LANES, SceneFeatures, Variant, build_defines, primary_step, rays_per_work_item
-from rtlab.reference import compare_hits, reference_trace
 from rtlab.device.rendering import render
 from rtlab.device.tracing import trace
+from rtlab.errors import VariantError
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.reference.check import check_render
 from rtlab.scene.model import camera_rays
 
 PACKET = Variant("bvh-packet")

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rtlab.backends.nvcc import nvcc_available
 from rtlab.labs import LabError, grade, lab_names, load_config, splice_regions, strip_regions
 from rtlab.labs.checks import check_camera_rays, speed_score
 from rtlab.labs.fixtures import hidden_seed, spec_for_run
@@ -40,7 +41,6 @@ from rtlab.labs.results import gradescope_dict
 from rtlab.labs.submission import check_source, tree_rules
 from rtlab.labs.trees import (build_student_tree, find_submitted_file, kernel_files, region_owners, template_text,
                               tree_stubs)
-from rtlab.backends.nvcc import nvcc_available
 from rtlab.paths import PROJECT_DIR
 
 STEP = "00_primary"

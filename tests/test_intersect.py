@@ -10,10 +10,10 @@ import rtlab
 from rtlab.accel.tri_data import (PLUCKER_ROWS, WALD_ROWS, plucker_tri_data, tri_bytes_read, tri_data_bytes,
                                   wald_tri_data)
 from rtlab.benches.intersect import check_loop, intersect_loop, nvcc_registers
-from rtlab.reference.check import check_render
 from rtlab.device.kernels import INTERSECTIONS, Variant
-from rtlab.reference import compare_hits
 from rtlab.device.rendering import render
+from rtlab.reference import compare_hits
+from rtlab.reference.check import check_render
 from rtlab.scene.model import Camera
 
 from .conftest import require_scene_file

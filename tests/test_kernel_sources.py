@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import SceneFeatures, Variant, build_defines, kernel_source, lab_steps, unpaired_steps
 from rtlab.device.layout import STRUCT_SIZES
-from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 
 DEFAULT_DEFINES = build_defines(Variant(), SceneFeatures(stack_size=32, n_lights=2, n_materials=8))
 

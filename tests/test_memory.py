@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.reference.check import check_render
-from rtlab.errors import VariantError
+from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import (MEMORY_STEP, SceneFeatures, TRACE_THREADS, Variant, build_defines, build_options,
                            kernel_source, load_program, primary_step)
-from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.rendering import render
 from rtlab.device.scene import device_scene
+from rtlab.errors import VariantError
+from rtlab.reference.check import check_render
 
 from .conftest import require_scene_file
 

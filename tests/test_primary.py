@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.reference.check import check_render
 from rtlab.device.kernels import Variant
-from rtlab.reference import compare_hits, reference_trace
 from rtlab.device.rendering import render
 from rtlab.device.tracing import trace
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.reference.check import check_render
 from rtlab.scene.model import camera_rays
 
 from .conftest import require_scene_file

@@ -14,14 +14,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtlab.errors import RtlabError
 from rtlab.device.kernels import SceneFeatures, Variant, build_defines, kernel_source
+from rtlab.device.probes import probe_refraction, probe_secondary_rays, probe_shadow_rays
+from rtlab.device.tracing import trace
+from rtlab.device.whitted import NO_RAY, render_whitted, shading_defines
+from rtlab.errors import RtlabError
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import apply_materials, glass_scene, mtl_materials, reachable_bounces, shading_features
 from rtlab.scene.model import Camera, Light, Material, Scene
-from rtlab.device.tracing import trace
-from rtlab.device.probes import probe_refraction, probe_secondary_rays, probe_shadow_rays
-from rtlab.device.whitted import NO_RAY, render_whitted, shading_defines
 
 from .conftest import require_scene_file
 

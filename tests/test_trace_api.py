@@ -11,8 +11,8 @@ import pytest
 import rtlab
 from rtlab.benches.rays import diffuse_rays, make_rays, peer_figures
 from rtlab.device.kernels import Variant
-from rtlab.reference import compare_hits, reference_trace
 from rtlab.device.tracing import ray_buffers, trace
+from rtlab.reference import compare_hits, reference_trace
 from rtlab.scene.model import camera_rays
 
 from .conftest import require_scene_file

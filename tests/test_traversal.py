@@ -13,18 +13,16 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.device.scene import device_scene
 from rtlab.accel.bvh import MAX_LEAF, build_bvh, decode_leaf
 from rtlab.accel.kdtree import KdBuildParams, build_kdtree
 from rtlab.accel.ropes import build_ropes
-from rtlab.device.scene import DeviceScene, padded_bounds, scene_kdtree
 from rtlab.device.kernels import SceneFeatures, TRAVERSALS, Variant, build_defines, kernel_source, primary_step
 from rtlab.device.layout import float4_rows
-from rtlab.reference import compare_hits, reference_trace
 from rtlab.device.rendering import render
-from rtlab.scene.model import Camera, Material, Scene
+from rtlab.device.scene import DeviceScene, device_scene, padded_bounds, scene_kdtree
 from rtlab.device.tracing import trace
-from rtlab.scene.model import camera_rays
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.scene.model import Camera, Material, Scene, camera_rays
 
 from .conftest import require_scene_file
 

@@ -28,8 +28,8 @@ import numpy as np
 from numba import njit, prange
 
 from .. import paths
-from ..kernel_constants import kernel_constant
 from ..errors import RtlabError, SceneError
+from ..kernel_constants import kernel_constant
 from .cache import atomic_savez, cache_key, load_or_build
 
 FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same inputs changes

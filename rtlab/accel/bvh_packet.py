@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..kernel_constants import kernel_constant
 from ..errors import SceneError
+from ..kernel_constants import kernel_constant
 from .bvh import Bvh, BvhBuildParams
 
 LEAF_BITS = int(kernel_constant("PBVH_LEAF_BITS"))

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..kernel_constants import kernel_constant
 from ..errors import RtlabError
+from ..kernel_constants import kernel_constant
 from .kdtree import LEAF_TAG, KdTree
 
 RECORD_FLOAT4S = int(kernel_constant("KD_ROPES_LEAF_STRIDE"))

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernel_constants import kernel_constant
 from ..errors import VariantError
+from ..kernel_constants import kernel_constant
 
 WALD_ROWS = int(kernel_constant("RT_WALD_ROWS"))
 PLUCKER_ROWS = int(kernel_constant("RT_PLUCKER_ROWS"))

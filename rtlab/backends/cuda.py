@@ -11,9 +11,9 @@ import numpy as np
 
 from ..errors import BackendError, KernelBuildError
 from ..paths import include_dirs
-from .occupancy import SmLimits, cuda_occupancy
 from .base import (CUDA_PRECISION_OPTIONS, Backend, KernelResources, Program, Texture, format_build_error, read_source,
                    round_up)
+from .occupancy import SmLimits, cuda_occupancy
 
 
 def _pycuda():

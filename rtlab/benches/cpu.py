@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import RtlabError
 from ..device.kernels import Variant
+from ..errors import RtlabError
 from .tables import Table, report_markdown
 
 EMBREE_HINT = "Embree is not installed: `pip install 'rtlab[bench]'` (or `pip install embreex`)"

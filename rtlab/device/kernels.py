@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import VariantError
-from ..paths import kernel_dir, use_kernel_dir  # noqa: F401  (use_kernel_dir: the loader's too)
 from ..kernel_constants import kernel_constant
+from ..paths import kernel_dir, use_kernel_dir  # noqa: F401  (use_kernel_dir: the loader's too)
 
 
 def _codes(prefix: str, names) -> dict[str, int]:

@@ -8,8 +8,8 @@ import numpy as np
 
 from ..backends import get_backend
 from ..errors import RtlabError
-from ..scene.model import Scene
 from ..kernel_constants import kernel_constant
+from ..scene.model import Scene
 from .kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
 from .layout import float4_rows
 from .scene import device_scene

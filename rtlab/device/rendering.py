@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..backends import get_backend
+from ..scene.model import Scene
 from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE
-from ..scene.model import Scene
-from .tracing import TraceResult, default_variant, unpack_hits
 from .scene import device_scene
+from .tracing import TraceResult, default_variant, unpack_hits
 
 
 @dataclass

@@ -6,9 +6,9 @@ kernels, and the autograder.
     report = grade("00_primary", "submission/")        # each test in its own process, PoCL
     write_release("student-release")                  # what students get: no solutions
 """
+from ..errors import LabError
 from .config import LabConfig, TestSpec, lab_names, load_config
 from .grader import GradeReport, TestResult, grade
-from ..errors import LabError
 from .regions import find_regions, splice_regions, strip_regions, stubbed_functions
 from .release import write_release
 from .template import template_files, write_template

@@ -22,9 +22,9 @@ import stat
 import zipfile
 from pathlib import Path
 
+from ..errors import LabError
 from ..paths import IN_CHECKOUT, PROJECT_DIR, find_scene_file
 from .config import load_config
-from ..errors import LabError
 
 VENV = "/opt/rtlab"
 ROOT = "/autograder"

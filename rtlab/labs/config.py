@@ -17,8 +17,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..paths import LABS_DIR
 from ..errors import LabError
+from ..paths import LABS_DIR
 
 VISIBILITIES = ("visible", "after_due_date", "after_published", "hidden")
 DEFAULT_TIME_LIMIT = 20.0     # seconds for a test's own work: kernel launches and checks

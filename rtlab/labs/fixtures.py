@@ -12,8 +12,8 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from .config import TestSpec
 from ..errors import LabError
+from .config import TestSpec
 
 _fixture_lock = threading.Lock()
 _fixture_dir: Path | None = None

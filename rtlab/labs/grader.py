@@ -34,10 +34,10 @@ from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..errors import LabError
 from .config import LabConfig, TestSpec, load_config
 from .fixtures import prepare_fixture, spec_for_run
 from .processes import ChildResult, Limits, default_jobs, run_child, shorten
-from ..errors import LabError
 from .submission import REFUSED_MARK
 from .trees import StudentTree, build_student_tree, reference_tree
 

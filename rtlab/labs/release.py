@@ -20,8 +20,8 @@ import shutil
 import tomllib
 from pathlib import Path
 
-from .config import lab_names, load_config
 from ..errors import LabError
+from .config import lab_names, load_config
 from .trees import copy_stubbed, reference_kernels
 
 RELEASE_ITEMS = ("pyproject.toml", "Makefile", "scripts", "rtlab", "notebooks")

@@ -21,8 +21,8 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .config import LabConfig, lab_names, load_config
 from ..errors import LabError
+from .config import LabConfig, lab_names, load_config
 from .regions import find_regions, strip_regions
 from .submission import Refusal, Refused, check_source, read_submitted, refused_placeholder, tree_rules
 

@@ -7,9 +7,9 @@ from typing import Callable
 
 import numpy as np
 
+from ..scene.model import Scene
 from .cases import (SPHERE_CENTRE, ROOM_HALF, SMALL_SPHERE, STAIR_RISE, STAIR_STEPS, STAIR_WIDTH, Case, box_mesh,
                     case_scene, f32, merge_meshes, quads_mesh, unit_rows)
-from ..scene.model import Scene
 
 def family_sphere(n_rays: int, subdivisions: int, seed: int = 1) -> list[Case]:
     """1. Closed icosphere (radius 100) centred at SPHERE_CENTRE; origins within half the radius

@@ -36,8 +36,8 @@ from typing import Callable
 
 import numpy as np
 
-from rtlab.kernel_constants import kernel_constant
 from rtlab.errors import SceneError
+from rtlab.kernel_constants import kernel_constant
 from rtlab.scene.model import Camera, Light, Material, Scene
 
 # Children lighter than this are not spawned: RT_MIN_WEIGHT of kernels/shared/rt_whitted.h.
