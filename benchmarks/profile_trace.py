@@ -31,7 +31,7 @@ from rtlab.backends import get_backend  # noqa: E402
 from rtlab.benches.rays import make_rays  # noqa: E402
 from rtlab.device.kernels import Variant, load_program, primary_step  # noqa: E402
 from rtlab.device.layout import float4_rows  # noqa: E402
-from rtlab.device.scene import device_scene
+from rtlab.device.scene import device_scene  # noqa: E402
 from rtlab.device.tracing import TRACE_BLOCK, ray_buffers, trace  # noqa: E402
 
 

@@ -94,3 +94,15 @@ def test_bad_meshes(tmp_path):
     garbage = tmp_path / "garbage.obj"
     garbage.write_text("this is not an obj file\nf 1 2 x\n")
     assert_clear_error(*run_cli("render", garbage), "garbage.obj")
+
+
+def test_bench_markdown_names_the_command_it_ran(tmp_path):
+    """--md writes the command that made the table: the arguments main() was given (options and
+    flags as typed, defaults left out), not the process's sys.argv (pytest's here)."""
+    import shlex
+    from rtlab.cli import main
+    md = tmp_path / "primary.md"
+    args = ["bench", "primary", "--scenes", "default", "--backends", "opencl", "--size", "16", "--repeats", "1",
+            "--no-check", "--md", str(md)]
+    assert main(args) == 0
+    assert f"Command: `rtlab {shlex.join(args)}`" in md.read_text()

@@ -118,15 +118,6 @@ class CpuRow:
         return self.rtlab_mrays_cpu / self.embree_mrays_cpu
 
 
-def _error(batch, tri, t) -> dict:
-    from ..reference import compare_hits
-    idx = batch.check_index
-    cmp = compare_hits(batch.reference, tri[idx], t[idx], batch.scene.vertices, batch.scene.faces,
-                       batch.origins[idx], batch.directions[idx])
-    return {"rays": cmp.n_rays, "mismatches": cmp.n_mismatch, "ties": cmp.n_ties,
-            "t_rel_err_max": float(cmp.t_rel_err_max)}
-
-
 def error_text(e: dict) -> str:
     """"mismatches (ties) / checked rays, largest relative t error"."""
     if not e:
@@ -158,7 +149,7 @@ def bench_cpu(batch, backend, variant: Variant | None = None, rounds: int = 7, e
         embree_cpu.append(cpu * 1e3)
     threads = int(getattr(getattr(backend, "device", None), "max_compute_units", 1) or 1)
     return CpuRow(batch.view, batch.size, batch.n, variant.label(), backend.device_name, threads, rtlab_ms,
-                  embree_ms, rtlab_cpu, embree_cpu, _error(batch, result.tri, result.t), _error(batch, e_tri, e_t),
+                  embree_ms, rtlab_cpu, embree_cpu, batch.error(result.tri, result.t), batch.error(e_tri, e_t),
                   os.getloadavg()[0])
 
 

@@ -21,11 +21,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..backends.occupancy import SM90, cuda_occupancy
-from ..device.kernels import Variant, build_defines, build_options, kernel_source, load_program, primary_step
+from ..backends.occupancy import cuda_occupancy
+from ..device.kernels import Variant, build_options, load_program, primary_step
 from ..device.layout import HIT_DTYPE
 from ..scene.model import Scene
 from .paper_figures import PAPER_FIG4_BEST, PAPER_FIG4_GOOD
+from .primary import nvcc_render_report
 from .tables import Table, fmt, report_markdown
 
 FIG4_BLOCKS = ((1, 32), (2, 32), (4, 32), (8, 32), (16, 32), (32, 32), (8, 8), (16, 16), (14, 32), (22, 20),
@@ -101,19 +102,6 @@ def _diff(t: _Timed, base: _Timed) -> dict:
             "pixels": int(np.count_nonzero(t.pixels != base.pixels))}
 
 
-def _nvcc(variant: Variant, features, shared_pad: int = 0) -> dict | None:
-    from ..backends.nvcc import nvcc_available, nvcc_resources
-    if not nvcc_available():
-        return None
-    threads = variant.block[0] * variant.block[1]
-    r = nvcc_resources(kernel_source(primary_step(variant), "cuda"), build_defines(variant, features),
-                       block_threads=threads, extra_options=build_options(variant, "cuda")).get("render_primary")
-    if r is None:
-        return None
-    return {"registers": r.registers, "spill_bytes": r.spill_bytes, "shared_bytes": r.shared_bytes,
-            "occupancy": cuda_occupancy(r.registers, threads, r.shared_bytes + shared_pad, SM90)}
-
-
 def _row(kind, scene, backend, variant, timed, base, features, shared_pad=0, note="", base_error=None) -> LaunchRow:
     """A row with the device's resources where it reports registers (CUDA, NVIDIA OpenCL), else
     nvcc's offline sm_90 figures for a GPU backend; none for a CPU device (no occupancy there)."""
@@ -125,7 +113,7 @@ def _row(kind, scene, backend, variant, timed, base, features, shared_pad=0, not
     if regs and backend.name == "cuda" and shared_pad:
         occ = cuda_occupancy(regs, threads, (res.get("shared_bytes") or 0) + shared_pad, backend.limits)
     if not regs:
-        nv = _nvcc(variant, features, shared_pad) if backend.is_gpu() else None
+        nv = nvcc_render_report(variant, features, shared_pad) if backend.is_gpu() else None
         if nv:
             regs, occ, spills, source = nv["registers"], nv["occupancy"], nv["spill_bytes"], "nvcc sm_90"
         else:
@@ -194,7 +182,6 @@ def register_sweep(scene: Scene, backend, traversals=FIG5_TRAVERSALS, caps=FIG5_
                    check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 5 by register caps: each traversal at each cap (one point a traversal on PoCL)."""
     from ..device.scene import device_scene
-    from ..device.kernels import build_options as options
     base = base or Variant()
     rows = []
     for name in traversals:
@@ -209,7 +196,7 @@ def register_sweep(scene: Scene, backend, traversals=FIG5_TRAVERSALS, caps=FIG5_
             continue
         for cap in caps:
             variant = uncapped.with_(max_registers=cap)
-            if cap and not options(variant, backend):
+            if cap and not build_options(variant, backend):
                 continue  # no register file to cap (PoCL)
             if progress is not None:
                 progress(f"Fig. 5: {scene.name} {name} cap {cap or 'none'} on {backend.name}")

@@ -21,9 +21,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..device.kernels import Variant, build_defines, build_options, kernel_source, primary_step
+from ..device.kernels import Variant, build_defines, build_options, kernel_source
 from ..scene.model import Scene
-from .primary import BenchRow, bench_render
+from .primary import BenchRow, bench_render, nvcc_render_report
 from .tables import Table, fmt, report_markdown
 
 # name -> (variant fields beyond the base, what it moves)
@@ -56,20 +56,6 @@ class MemoryRow:
 
 def placement_variant(name: str, base: Variant | None = None) -> Variant:
     return (base or Variant()).with_(**PLACEMENTS[name][0])
-
-
-def nvcc_render_report(variant: Variant, features) -> dict | None:
-    """Offline nvcc report (sm_90) of the render kernel this variant runs, or None without nvcc."""
-    from ..backends.nvcc import nvcc_available, nvcc_resources
-    if not nvcc_available():
-        return None
-    threads = variant.block[0] * variant.block[1]
-    report = nvcc_resources(kernel_source(primary_step(variant), "cuda"), build_defines(variant, features),
-                            block_threads=threads, extra_options=build_options(variant, "cuda"))
-    r = report.get("render_primary")
-    return None if r is None else {"registers": r.registers, "local_bytes": r.local_bytes,
-                                   "spill_bytes": r.spill_bytes, "shared_bytes": r.shared_bytes,
-                                   "occupancy": r.occupancy}
 
 
 def _hits(scene, backend, variant):

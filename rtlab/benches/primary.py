@@ -58,6 +58,25 @@ def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, war
     return row
 
 
+def nvcc_render_report(variant: Variant, features, shared_pad: int = 0) -> dict | None:
+    """nvcc's offline sm_90 report of the render kernel this variant runs (its step, defines and
+    register cap): registers, stack, spill and shared bytes, and the occupancy at the variant's block
+    with ``shared_pad`` more bytes of shared memory a block; None without nvcc."""
+    from ..backends.nvcc import nvcc_available, nvcc_resources
+    from ..backends.occupancy import SM90, cuda_occupancy
+    from ..device.kernels import build_defines, build_options, kernel_source, primary_step
+    if not nvcc_available():
+        return None
+    threads = variant.block[0] * variant.block[1]
+    r = nvcc_resources(kernel_source(primary_step(variant), "cuda"), build_defines(variant, features),
+                       block_threads=threads, extra_options=build_options(variant, "cuda")).get("render_primary")
+    if r is None:
+        return None
+    return {"registers": r.registers, "local_bytes": r.local_bytes, "spill_bytes": r.spill_bytes,
+            "shared_bytes": r.shared_bytes,
+            "occupancy": cuda_occupancy(r.registers, threads, r.shared_bytes + shared_pad, SM90)}
+
+
 COLUMNS = ("scene", "view", "backend", "device", "variant", "size", "median ms", "Mrays/s", "fps", "paper fps",
            "regs", "occupancy", "error vs float64 reference")
 

@@ -56,6 +56,15 @@ class RayBatch:
     def n(self) -> int:
         return self.origins.shape[0]
 
+    def error(self, tri: np.ndarray, t: np.ndarray) -> dict:
+        """A tracer's hits of these rays against the float64 reference, on the checked subsample."""
+        from ..reference import compare_hits
+        idx = self.check_index
+        cmp = compare_hits(self.reference, tri[idx], t[idx], self.scene.vertices, self.scene.faces,
+                           self.origins[idx], self.directions[idx])
+        return {"rays": cmp.n_rays, "mismatches": cmp.n_mismatch, "ties": cmp.n_ties,
+                "t_rel_err_max": float(cmp.t_rel_err_max)}
+
 
 def view_scene(view: str, size: int) -> Scene:
     """The preset of ``scene/view`` with the benchmark camera at size x size; a bare preset name
@@ -152,17 +161,12 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     """Time ``trace`` on the batch (median device time of ``repeats`` launches after ``warmup``),
     check the subsample against the float64 reference, and for primary rays time the render kernel
     on the same camera (what trace should match)."""
-    from ..reference import compare_hits
     from ..device.tracing import trace
     # primary rays are an image: traced in tiles of the variant's block (trace's width=)
     width = batch.size if batch.kind == "primary" else None
     result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,
                    width=width)
-    idx = batch.check_index
-    cmp = compare_hits(batch.reference, result.tri[idx], result.t[idx], batch.scene.vertices, batch.scene.faces,
-                       batch.origins[idx], batch.directions[idx])
-    error = {"rays": cmp.n_rays, "mismatches": cmp.n_mismatch, "ties": cmp.n_ties,
-             "t_rel_err_max": float(cmp.t_rel_err_max)}
+    error = batch.error(result.tri, result.t)
     row = RaysRow(batch.view, batch.kind, batch.size, backend.name, backend.device_name, variant.label(), batch.n,
                   result.kernel_ms, batch.n / (result.kernel_ms * 1e-3) / 1e6,
                   (float(min(result.launches_ms)), float(max(result.launches_ms))), error,

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..device.kernels import Variant, build_defines, kernel_source, primary_step
+from ..device.kernels import Variant
 from ..scene.model import Scene
 from .paper_figures import PAPER_SIZE, PAPER_TABLE4_FPS, PAPER_TABLE4_OCCUPANCY, PAPER_TABLE4_REGISTERS
-from .primary import BenchRow, bench_render
+from .primary import BenchRow, bench_render, nvcc_render_report
 from .tables import Table, fmt, report_markdown
 
 TABLE4_VARIANTS = ("stack", "packet", "restart", "shortstack", "ropes", "bvh")
@@ -35,20 +35,6 @@ class Table4Row:
         return self.bench.fps / paper if paper and self.bench.size == PAPER_SIZE else None
 
 
-def nvcc_report(variant: Variant, features) -> dict | None:
-    """Offline CUDA resources of the render kernel for this variant and scene, or None without nvcc."""
-    from ..backends.nvcc import nvcc_available, nvcc_resources
-    if not nvcc_available():
-        return None
-    threads = variant.block[0] * variant.block[1]
-    report = nvcc_resources(kernel_source(primary_step(variant), "cuda"), build_defines(variant, features),
-                            block_threads=threads)
-    r = report.get("render_primary")
-    return None if r is None else {"registers": r.registers, "local_bytes": r.local_bytes,
-                                   "shared_bytes": r.shared_bytes, "spill_bytes": r.spill_bytes,
-                                   "occupancy": r.occupancy}
-
-
 def bench_table4(scene: Scene, backend, traversals=TABLE4_VARIANTS, repeats: int = 25, check: bool = True,
                  view: str = "preset", base: Variant | None = None, progress=None) -> list[Table4Row]:
     """One Table 4 row group: every traversal on ``scene``'s camera on ``backend``."""
@@ -61,7 +47,7 @@ def bench_table4(scene: Scene, backend, traversals=TABLE4_VARIANTS, repeats: int
             progress(f"{scene.name}/{view} {name} on {backend.name}")
         row = bench_render(scene, backend, variant, repeats=repeats, check=check, view=view)
         features = device_scene(scene, backend).features(variant)
-        rows.append(Table4Row(name, row, nvcc_report(variant, features)))
+        rows.append(Table4Row(name, row, nvcc_render_report(variant, features)))
     return rows
 
 

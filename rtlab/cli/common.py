@@ -30,11 +30,12 @@ def int_list(text: str, option: str) -> list[int]:
         raise RtlabError(f"{option} must be whole numbers separated by commas, got '{text}'") from None
 
 
-def block_shape(text: str, option: str = "--block") -> tuple[int, int]:
-    """'32x4' -> (32, 4); anything else is a one-line error naming the option."""
+def block_shape(text: str, option: str = "--block", example: str = "32x4") -> tuple[int, int]:
+    """'32x4' -> (32, 4): a block, window or image shape WxH; anything else is a one-line error
+    naming the option."""
     parts = text.lower().split("x")
     if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
-        raise RtlabError(f"{option} must look like 32x4 (two positive whole numbers), got '{text}'")
+        raise RtlabError(f"{option} must look like {example} (two positive whole numbers), got '{text}'")
     return int(parts[0]), int(parts[1])
 
 

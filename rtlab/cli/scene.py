@@ -9,8 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from ..errors import RtlabError
-from .common import console, kd_tree, load_scene
+from .common import block_shape, console, kd_tree, load_scene
 
 
 def info():
@@ -69,12 +68,8 @@ def inspect(scene: str = typer.Argument("default", help="preset name, 'default' 
             window: str = typer.Option("1024x768", help="window / screenshot size WxH")):
     """Show the scene in pyvista: mesh, kd-tree cells, camera frustum, a pixel's rays and visited leaves."""
     from ..viz import inspect_scene
-    try:
-        w, h = (int(v) for v in window.lower().split("x"))
-    except ValueError:
-        raise RtlabError(f"--window must look like 1024x768, got '{window}'") from None
     view = inspect_scene(scene, depth=depth, pixel=pixel, size=size, screenshot=screenshot, backend=backend,
-                         window_size=(w, h))
+                         window_size=block_shape(window, "--window", "1024x768"))
     for line in view.summary():
         console.print(escape(line))
     if screenshot:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..errors import VariantError
 from ..kernel_constants import kernel_constant
-from ..paths import kernel_dir, use_kernel_dir  # noqa: F401  (use_kernel_dir: the loader's too)
+from ..paths import kernel_dir
 
 
 def _codes(prefix: str, names) -> dict[str, int]:
@@ -30,7 +30,7 @@ CONST_MEMORY = _codes("RT_MEM_", ("constant", "global"))
 RAY_MEMORY = _codes("RT_MEM_", ("registers", "shared", "indexed"))
 RAY_ORDERS = _codes("RT_ORDER_", ("rows", "morton"))
 MEMORY_STEP = "01_memory"
-TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.device.tracing.TRACE_BLOCK)
+TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.device.tracing's launch)
 PACKET_LANES = int(kernel_constant("RT_LANES"))           # rays a work-item of bvh-packet: one AVX register
 PACKET_WIDTH = int(kernel_constant("RT_PACKET_WIDTH"))    # children a node of its BVH (rtlab/accel/bvh_packet.py)
 

@@ -12,13 +12,11 @@ import numpy as np
 from ..backends import get_backend
 from ..errors import RtlabError
 from ..scene.model import Scene
-from .kernels import Variant, load_program, primary_step, rays_per_work_item
+from .kernels import DEFAULT_PRIMARY_STEP, TRACE_THREADS, Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .scene import device_scene
 
-PRIMARY_STEP = "00_primary"
-TRACE_BLOCK = 128
-
+TRACE_BLOCK = TRACE_THREADS    # threads a block of trace_rays (a profiler may sweep it)
 # Directions whose largest component lies outside this range are scaled by a power of two into
 # [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
 # read as a zero direction), above it products with coordinates overflow.
@@ -174,8 +172,8 @@ def _grid_launch(program, ds, variant: Variant, n: int, width: int, buffers):
     width = int(width)
     if width <= 0 or n % width:
         raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
-    if primary_step(variant) != PRIMARY_STEP:
-        raise RtlabError(f"width= needs lab step {PRIMARY_STEP}'s kernels; {variant.label()} runs in "
+    if primary_step(variant) != DEFAULT_PRIMARY_STEP:
+        raise RtlabError(f"width= needs lab step {DEFAULT_PRIMARY_STEP}'s kernels; {variant.label()} runs in "
                          f"{primary_step(variant)}'s, which trace a plain list of rays")
     height = n // width
     args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
