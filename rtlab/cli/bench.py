@@ -21,6 +21,8 @@ BACKENDS = typer.Option("auto", help="comma-separated: opencl, cuda, auto")
 DEVICE = typer.Option(None, help="device name substring (OpenCL)")
 CHECK = typer.Option(True, help="error against the float64 reference")
 MD = typer.Option(None, help="append the tables as markdown to this file")
+SIZE = typer.Option(1024, min=1, help="image width = height (paper: 1024)")
+VIEWS = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside")
 CPU_NOTE = "CPU device: times are not comparable with the paper's GPU figures."
 
 
@@ -50,6 +52,10 @@ def bench_scenes(scenes: str, views: str, size: int):
     return out
 
 
+def scenes_option(default: str):
+    return typer.Option(default, help="comma-separated presets")
+
+
 def repeats_option(default: int):
     return typer.Option(default, min=1, help="timed launches; the median is reported")
 
@@ -61,11 +67,11 @@ def cpu_note(backends) -> None:
 
 @bench_app.command("primary")
 def bench_primary(ctx: typer.Context,
-                  scenes: str = typer.Option("bunny,sponza,kitchen,dragon", help="comma-separated presets"),
+                  scenes: str = scenes_option("bunny,sponza,kitchen,dragon"),
                   backends: str = BACKENDS,
                   device: Optional[str] = DEVICE,
-                  size: int = typer.Option(1024, min=1, help="image width = height"),
-                  views: str = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside"),
+                  size: int = SIZE,
+                  views: str = VIEWS,
                   repeats: int = repeats_option(25),
                   check: bool = CHECK,
                   traversal: str = typer.Option("stack"), isect: str = typer.Option("moller"),
