@@ -18,9 +18,9 @@ $(VENV)/.installed: pyproject.toml scripts/install_system_deps.sh
 	$(BIN)/pip install -q -e .
 	touch $@
 
-# pytest, jupytext, pyvista (large): only what the tests need, not what render needs
+# pytest, jupytext, pyvista (large), embreex (bench cpu): only what the tests need, not what render needs
 $(VENV)/.installed-dev: $(VENV)/.installed
-	$(BIN)/pip install -q -e '.[dev,viz]'
+	$(BIN)/pip install -q -e '.[dev,viz,bench]'
 	touch $@
 
 # Whitted ray tracing of the procedural default scene: shadows, a mirror and a glass sphere

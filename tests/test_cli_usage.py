@@ -54,7 +54,8 @@ MORE_FORMS = [
     "grade --bundle 03_traversal --out {tmp}/bundle",
 ]
 # Forms that may fail on a machine without what they need, with one of these in their one line
-MAY_BE_UNAVAILABLE = ("CUDA backend unavailable", "no CUDA", "needs scene file", "pyvista", "EGL", "OSMesa")
+MAY_BE_UNAVAILABLE = ("CUDA backend unavailable", "no CUDA", "needs scene file", "pyvista", "EGL", "OSMesa",
+                      "Embree is not installed")
 
 
 def run_cli(args, cwd):
