@@ -80,8 +80,12 @@ def _contexts(ctx: typer.Context):
 
 def print_tables(tables, width: int | None = None) -> None:
     """Bench tables (rtlab.benches.tables.Table) as rich tables; ``width`` for tables too wide to fold
-    legibly in 80 columns."""
-    out = Console(width=max(console.width, width)) if width else console
+    legibly in 80 columns. Into a file or a pipe (a log) each table keeps its natural width: rich
+    would fold it into 80 columns of cut-off cells."""
+    if not console.is_terminal:
+        out = Console(width=1000)
+    else:
+        out = Console(width=max(console.width, width)) if width else console
     for t in tables:
         if t.note:
             out.print(escape(t.note), highlight=False)
