@@ -70,6 +70,20 @@ def _imports(modules, lazy: bool) -> dict[str, set[str]]:
     return graph
 
 
+def _rtlab_imports_outside_the_package():
+    """(file, line, module, names) of every rtlab import, at any depth, in the tests, benchmarks,
+    scripts and notebooks: the code that a rename inside the package leaves behind."""
+    for folder in ("tests", "benchmarks", "scripts", "notebooks", "labs"):
+        for path in sorted((PROJECT_DIR / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("rtlab"):
+                    yield path, node.lineno, node.module, [a.name for a in node.names]
+                elif isinstance(node, ast.Import):
+                    for a in node.names:
+                        if a.name.startswith("rtlab"):
+                            yield path, node.lineno, a.name, []
+
+
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     """Strongly connected components of more than one node (Tarjan)."""
     index, low, on_stack, stack, out = {}, {}, set(), [], []
@@ -109,6 +123,28 @@ def _layer(module: str) -> str:
 def test_no_module_imports_itself_back_at_import_time():
     graph = _imports(_modules(), lazy=False)
     assert not _cycles(graph), f"import cycles at import time: {_cycles(graph)}"
+
+
+def test_imports_outside_the_package_name_what_exists():
+    """An editable install or a stale checkout can hide a module that moved (the old file is found
+    elsewhere on the path); here every name is looked up in this tree's package."""
+    import importlib
+    missing = []
+    for path, line, module, names in _rtlab_imports_outside_the_package():
+        where = f"{path.relative_to(PROJECT_DIR)}:{line}"
+        try:
+            mod = importlib.import_module(module)
+        except ImportError as e:
+            missing.append(f"{where}: {module} ({e})")
+            continue
+        assert Path(mod.__file__).resolve().is_relative_to(PACKAGE_DIR.resolve()), f"{module} from {mod.__file__}"
+        for name in names:
+            if not hasattr(mod, name):
+                try:
+                    importlib.import_module(f"{module}.{name}")
+                except ImportError:
+                    missing.append(f"{where}: {module} has no {name}")
+    assert not missing, "\n".join(missing)
 
 
 def test_packages_form_layers_even_counting_imports_inside_functions():

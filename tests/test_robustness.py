@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtlab import kernels
+from rtlab.device import kernels
 from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness
 
 FAMILIES = sorted(FAMILY_NAMES)
