@@ -1,7 +1,7 @@
 /* rt_port.h - the portability layer: one source of device code for two languages.
  *
  * Compiled as CUDA C++ by nvcc (sm_90; pycuda) and as OpenCL C by NVIDIA's OpenCL 3.0 and PoCL.
- * The port layer is three headers, the only ones that test __CUDACC__ (tests/test_kernel_sources.py
+ * The port layer is three headers, the only ones that test __CUDACC__ (tests/test_architecture.py
  * checks): this one (qualifiers, math, atomics, barriers, double precision), rt_memory.h (where the
  * scene's buffers live and how they are read) and rt_lanes.h (SIMD lane vectors of the CPU packet
  * traversal). Algorithm headers include them and are written in the C both languages accept: no

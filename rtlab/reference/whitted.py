@@ -197,7 +197,7 @@ def reference_whitted(scene: Scene, camera: Camera | None = None, bounces: int =
 
 
 @dataclass
-class WhittedError:
+class WhittedAccuracy:
     """A kernel image against the reference: image error and ray-tree agreement."""
     rmse: float
     psnr: float
@@ -242,13 +242,13 @@ def first_tree_difference(tree: dict, ref_tree: dict, n: int) -> tuple[str, int,
     return first
 
 
-def whitted_error(image: np.ndarray, tree: dict | None, ref: ReferenceWhitted) -> WhittedError:
+def whitted_error(image: np.ndarray, tree: dict | None, ref: ReferenceWhitted) -> WhittedAccuracy:
     """Image error of a kernel render against the reference; with the kernel's ray tree (a render
     made with write_hits), the pixels whose trees differ and the colour error where they agree."""
     rmse, psnr = image_rmse_psnr(image, ref.image)
     n = ref.image.shape[0] * ref.image.shape[1]
     differ = tree_differs(tree, ref.tree, n) if tree is not None else np.zeros(n, bool)
     delta = np.abs(image.astype(np.int32) - ref.image.astype(np.int32)).max(axis=2).reshape(-1)[~differ]
-    return WhittedError(rmse, psnr, int(differ.sum()) if tree is not None else -1, n,
+    return WhittedAccuracy(rmse, psnr, int(differ.sum()) if tree is not None else -1, n,
                         int(delta.max()) if delta.size else 0,
                         float(np.percentile(delta, 99)) if delta.size else 0.0)
