@@ -1,0 +1,149 @@
+"""Quality figures of a BVH from rtlab.accel.bvh, measured on the host: its SAH cost and a counting
+traversal that mirrors kernels/shared/rt_bvh.h (benchmarks/bench_bvh_quality.py, tests).
+
+The counting traversal walks the tree as traverse_bvh does: the ray is clipped to the scene box
+first; a while-while loop tests both child boxes of an inner node against the segment
+[tmin, closest hit so far] (inclusive), descends into the nearer child hit (child 0 on a tie) and
+pushes the farther; a popped entry is entered without a new box test; a leaf tests all its
+triangles (Möller–Trumbore, here in float64 on the float32 data, closest hit, the lower id at an equal t). It counts
+inner-node visits and triangle tests per ray.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .bvh import LEAF_BITS, MAX_LEAF, Bvh
+
+# Instructions a CUDA thread spends per inner-node visit and per triangle test (rt_bvh.h, SASS
+# counts): the GPU cost proxy is NODE_COST nodes + TRI_COST triangles a ray
+NODE_COST, TRI_COST = 65.0, 45.0
+
+
+def sah_cost(bvh: Bvh, cost_traversal: float = 1.0, cost_intersect: float = 1.0) -> float:
+    """(C_trav sum of inner-node areas + C_isect sum of leaf area x count) / root area, with the
+    same constants for every tree, so that trees of different builds compare."""
+    lo, hi, ref = bvh.child_lo.astype(np.float64), bvh.child_hi.astype(np.float64), bvh.child_ref
+
+    def half_area(lo, hi):
+        e = np.maximum(hi - lo, 0.0)
+        return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+    node_area = half_area(lo.min(axis=1), hi.max(axis=1))
+    child_area = half_area(lo, hi)
+    count = np.where(ref < 0, (~ref.astype(np.int64)) & MAX_LEAF, 0)
+    root = node_area[0] if len(node_area) else 0.0
+    if not root > 0.0:
+        return 0.0
+    return float((cost_traversal * node_area.sum() + cost_intersect * (child_area * count).sum()) / root)
+
+
+@njit(cache=True, inline="always")
+def _clip(o, inv, lo, hi, t0, t1):
+    """Slab test of [lo, hi] on the segment [t0, t1]; (entry, exit)."""
+    for a in range(3):
+        n = (lo[a] - o[a]) * inv[a]
+        f = (hi[a] - o[a]) * inv[a]
+        if n > f:
+            n, f = f, n
+        if n == n:                         # NaN (origin on a plane of a zero component): keep
+            t0 = max(t0, n)
+        if f == f:
+            t1 = min(t1, f)
+    return t0, t1
+
+
+@njit(cache=True, inline="always")
+def _moller(o, d, v, f):
+    """t of the ray's hit on the triangle with corners v[f[0]], v[f[1]], v[f[2]] (edges
+    inclusive, two-sided), NaN when none."""
+    ax, ay, az = v[f[0], 0], v[f[0], 1], v[f[0], 2]
+    e1x, e1y, e1z = v[f[1], 0] - ax, v[f[1], 1] - ay, v[f[1], 2] - az
+    e2x, e2y, e2z = v[f[2], 0] - ax, v[f[2], 1] - ay, v[f[2], 2] - az
+    px, py, pz = d[1] * e2z - d[2] * e2y, d[2] * e2x - d[0] * e2z, d[0] * e2y - d[1] * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return np.nan
+    inv_det = 1.0 / det
+    sx, sy, sz = o[0] - ax, o[1] - ay, o[2] - az
+    u = (sx * px + sy * py + sz * pz) * inv_det
+    if u < 0.0 or u > 1.0:
+        return np.nan
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    w = (d[0] * qx + d[1] * qy + d[2] * qz) * inv_det
+    if w < 0.0 or u + w > 1.0:
+        return np.nan
+    return (e2x * qx + e2y * qy + e2z * qz) * inv_det
+
+
+@njit(parallel=True, cache=True)
+def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, depth, vertices, faces,
+                    origins, directions, tmin):
+    """Per ray: (inner-node visits, triangle tests, closest triangle id or -1, its t)."""
+    n = origins.shape[0]
+    nodes = np.zeros(n, np.int64)
+    tris = np.zeros(n, np.int64)
+    hit_tri = np.full(n, -1, np.int64)
+    hit_t = np.full(n, np.inf)
+    for i in prange(n):
+        o, d, inv = origins[i], directions[i], np.empty(3)
+        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
+            continue
+        for a in range(3):
+            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
+        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        if not t0 <= t1:
+            continue
+        stack = np.empty(depth + 1, np.int64)
+        sp = 0
+        ref = 0
+        best_t, best = np.inf, -1
+        n_nodes = n_tris = 0
+        while True:
+            while ref >= 0:
+                n_nodes += 1
+                e0, x0 = _clip(o, inv, child_lo[ref, 0], child_hi[ref, 0], tmin, np.inf)
+                e1, x1 = _clip(o, inv, child_lo[ref, 1], child_hi[ref, 1], tmin, np.inf)
+                hit0 = e0 <= x0 and e0 <= best_t
+                hit1 = e1 <= x1 and e1 <= best_t
+                c0, c1 = child_ref[ref, 0], child_ref[ref, 1]
+                if hit0 and hit1:
+                    near0 = e0 <= e1
+                    stack[sp] = c1 if near0 else c0
+                    sp += 1
+                    ref = c0 if near0 else c1
+                elif hit0 or hit1:
+                    ref = c0 if hit0 else c1
+                else:
+                    if sp == 0:
+                        break
+                    sp -= 1
+                    ref = stack[sp]
+            if ref >= 0:
+                break                          # popped the last entry of an empty stack
+            bits = ~ref
+            first, count = bits >> LEAF_BITS, bits & MAX_LEAF
+            for j in range(first, first + count):
+                tri = objects[j]
+                n_tris += 1
+                t = _moller(o, d, vertices, faces[tri])
+                if t > tmin and (t < best_t or (t == best_t and tri < best)):
+                    best_t, best = t, tri
+            if sp == 0:
+                break
+            sp -= 1
+            ref = stack[sp]
+        nodes[i], tris[i], hit_tri[i], hit_t[i] = n_nodes, n_tris, best, best_t
+    return nodes, tris, hit_tri, hit_t
+
+
+def traversal_counts(bvh: Bvh, vertices, faces, origins, directions, tmin: float = 0.0):
+    """count_traversal of ``bvh`` for rays (origins, directions): (nodes, tris, tri ids, t) per ray."""
+    b = np.asarray(bvh.bounds, np.float64)           # grown as rtlab.device.scene.padded_bounds does
+    pad = np.abs(b).max() * 2.0 ** -20 + (b[1] - b[0]).max() * 1e-6 + 1e-30
+    box = np.stack([b[0] - pad, b[1] + pad])
+    return count_traversal(bvh.child_lo.astype(np.float64), bvh.child_hi.astype(np.float64),
+                           bvh.child_ref.astype(np.int64), np.asarray(bvh.objects, np.int64), box[0], box[1],
+                           int(bvh.depth), np.asarray(vertices, np.float32).astype(np.float64),
+                           np.asarray(faces, np.int64), np.asarray(origins, np.float32).astype(np.float64),
+                           np.asarray(directions, np.float32).astype(np.float64), float(tmin))
