@@ -1,0 +1,182 @@
+"""The BVH builder with spatial splits (SBVH, rtlab.accel.bvh_splits): host invariants checked on
+the tree as built, against points sampled on every triangle, and the "bvh" traversal's hits on a
+spatially split tree against the float64 reference.
+
+Cases: the default scene (with two zero-area triangles appended) and a box of long thin
+triangles crossing each other, where spatial splits must happen.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rtlab
+from rtlab.accel.bvh import MAX_LEAF, BvhBuildParams, build_bvh, decode_leaf
+from rtlab.accel.bvh_packet import PACKET_BUILD
+from rtlab.accel.bvh_stats import sah_cost, traversal_counts
+from rtlab.reference import compare_hits, reference_trace
+from rtlab.scene.model import Camera, Material, Scene
+
+SBVH = BvhBuildParams(spatial_alpha=1e-5)
+GRID = 8                         # barycentric steps of 1/GRID: corners, edges, inside
+
+
+def _slivers(n=400, seed=3):
+    """Long thin triangles from one side of a unit box to the other, crossing each other."""
+    rng = np.random.default_rng(seed)
+    a = rng.random((n, 3))
+    b = rng.random((n, 3))
+    axis = rng.integers(0, 3, n)
+    a[np.arange(n), axis], b[np.arange(n), axis] = 0.0, 1.0
+    c = a + rng.normal(scale=0.01, size=(n, 3))
+    v = np.stack([a, b, c], axis=1).reshape(-1, 3).astype(np.float32)
+    return v, np.arange(3 * n, dtype=np.int32).reshape(n, 3)
+
+
+def _default_with_degenerates():
+    scene = rtlab.load_scene("default", size=16)
+    f = np.concatenate([scene.faces, [[0, 0, 1]], [[0, 1, 1]]]).astype(np.int32)  # two zero-area triangles
+    return scene.vertices.copy(), f, len(scene.faces)
+
+
+def _leaves(bvh):
+    """(first, count, [boxes from the root's child down to the leaf]) of every leaf; the depth."""
+    out, max_depth = [], 0
+    todo = [(0, 1, [])]
+    while todo:
+        node, depth, path = todo.pop()
+        for c in range(2):
+            ref = int(bvh.child_ref[node, c])
+            box = (bvh.child_lo[node, c], bvh.child_hi[node, c])
+            if ref >= 0:
+                assert np.all(bvh.child_lo[ref] >= box[0]) and np.all(bvh.child_hi[ref] <= box[1]), "child box not nested"
+                todo.append((ref, depth + 1, path + [box]))
+                continue
+            first, count = decode_leaf(ref)
+            out.append((first, count, path + [box]))
+            max_depth = max(max_depth, depth)
+    return out, max_depth
+
+
+def _barycentric_points(v, f):
+    """(F, P, 3) float64 points on each triangle at barycentrics i/GRID, j/GRID."""
+    w = np.array([(i, j, GRID - i - j) for i in range(GRID + 1) for j in range(GRID + 1 - i)], np.float64) / GRID
+    corners = v.astype(np.float64)[f]                          # (F, 3, 3)
+    return np.einsum("pk,fkm->fpm", w, corners)
+
+
+def _check_tree(v, f, bvh, usable):
+    """Every invariant of the brief: references, leaves, depth, and each sampled point of each
+    usable triangle inside a leaf box that references it and inside all that leaf's ancestors."""
+    leaves, depth = _leaves(bvh)
+    assert bvh.depth == depth
+    seen = np.zeros(len(f), np.int64)
+    covered = np.zeros((len(f), (GRID + 1) * (GRID + 2) // 2), bool)
+    points = _barycentric_points(v, f)
+    for first, count, path in leaves:
+        assert 1 <= count <= MAX_LEAF
+        tris = bvh.objects[first:first + count]
+        assert len(np.unique(tris)) == count, "a triangle twice in one leaf"
+        seen[tris] += 1
+        inside = np.ones((count, points.shape[1]), bool)
+        for lo, hi in path:
+            p = points[tris]
+            inside &= np.all((p >= lo) & (p <= hi), axis=2)
+        covered[tris] |= inside
+    assert np.all(seen[usable] >= 1), "a usable triangle is not referenced"
+    assert np.all(seen[~usable] == 0), "an unusable triangle was referenced"
+    missing = np.argwhere(~covered[usable])
+    assert len(missing) == 0, f"{len(missing)} sampled points outside every leaf that references their triangle"
+    assert np.array_equal(bvh.bounds, np.stack([v[f[usable]].min((0, 1)), v[f[usable]].max((0, 1))]))
+    return seen
+
+
+def test_sbvh_invariants_default_scene():
+    v, f, n_good = _default_with_degenerates()
+    bvh = build_bvh(v, f, SBVH)
+    usable = np.arange(len(f)) < n_good
+    _check_tree(v, f, bvh, usable)
+    assert len(bvh.objects) <= (1 + SBVH.spatial_growth) * n_good
+
+
+def test_sbvh_invariants_slivers_split():
+    v, f = _slivers()
+    plain = build_bvh(v, f)
+    bvh = build_bvh(v, f, SBVH)
+    seen = _check_tree(v, f, bvh, np.ones(len(f), bool))
+    assert seen.max() > 1 and len(bvh.objects) > len(f), "no reference was split on crossing slivers"
+    assert len(bvh.objects) <= (1 + SBVH.spatial_growth) * len(f)
+    assert sah_cost(bvh) < sah_cost(plain)
+
+
+def test_sbvh_reference_budget():
+    v, f = _slivers()
+    for growth in (0.05, 0.3):
+        bvh = build_bvh(v, f, BvhBuildParams(spatial_alpha=1e-5, spatial_growth=growth))
+        assert len(f) < len(bvh.objects) <= int((1 + growth) * len(f))
+
+
+def test_sbvh_off_by_default():
+    v, f, _ = _default_with_degenerates()
+    a, b = build_bvh(v, f), build_bvh(v, f, BvhBuildParams(spatial_alpha=0.0))
+    for name in ("child_lo", "child_hi", "child_ref", "objects"):
+        assert np.array_equal(getattr(a, name), getattr(b, name))
+    assert PACKET_BUILD.spatial_alpha == 0.0, "the packet BVH is not checked with duplicated references"
+    assert BvhBuildParams().key() != SBVH.key()
+
+
+def _sliver_scene():
+    v, f = _slivers()
+    return Scene("slivers", v, f, np.zeros(len(f), np.int32), [Material()],
+                 Camera((2.2, 1.7, 2.5), (0.5, 0.5, 0.5)), source="procedural")
+
+
+def _rays(n=4000, seed=5):
+    """Rays from points around the unit box through points inside it."""
+    rng = np.random.default_rng(seed)
+    o = rng.uniform(-1.0, 2.0, (n, 3))
+    d = rng.uniform(0.1, 0.9, (n, 3)) - o
+    return o.astype(np.float32), d.astype(np.float32)
+
+
+def test_sbvh_counting_traversal_finds_reference_hits():
+    scene = _sliver_scene()
+    o, d = _rays()
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    for params in (BvhBuildParams(), SBVH):
+        bvh = build_bvh(scene.vertices, scene.faces, params)
+        nodes, tris, tri, t = traversal_counts(bvh, scene.vertices, scene.faces, o, d)
+        c = compare_hits(ref, tri, np.where(tri >= 0, t, np.inf).astype(np.float32), scene.vertices, scene.faces, o, d)
+        assert c.n_mismatch == 0 and nodes.min() >= 1
+
+
+@pytest.mark.parametrize("scene_name", ["slivers", "default"])
+def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
+    """The "bvh" traversal on the spatially split tree (uploaded in place of the default build)
+    finds the float64 reference's hits."""
+    import rtlab.device.scene as device_scene_module
+    from rtlab.device.kernels import Variant
+    from rtlab.device.tracing import trace
+    scene = _sliver_scene() if scene_name == "slivers" else rtlab.load_scene("default", size=16)
+    bvh = build_bvh(scene.vertices, scene.faces, SBVH)
+    assert len(bvh.objects) > np.unique(bvh.objects).size, "nothing was split"
+    arrays = device_scene_module.AccelArrays(device_scene_module.NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds,
+                                             bvh.depth + 1)
+    monkeypatch.setitem(device_scene_module.ACCEL_BUILDERS, "bvh", lambda s, tree: arrays)
+    ds = device_scene_module.device_scene(scene, backend)
+    ds.accel.pop("bvh", None)
+    try:
+        o, d = _rays(seed=7) if scene_name == "slivers" else _default_rays(scene)
+        got = trace(scene, o, d, backend, Variant("bvh"))
+        assert ds.accel["bvh"][0] is arrays
+    finally:
+        ds.accel.pop("bvh", None)            # later tests get the default build again
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, d)
+    assert c.n_mismatch == 0, f"{c.n_mismatch} of {len(o)} rays differ from the reference"
+    assert np.sum(got.tri >= 0) > len(o) // 10
+
+
+def _default_rays(scene):
+    from rtlab.scene.model import camera_rays
+    return camera_rays(scene.camera)
