@@ -24,25 +24,31 @@
 /* ---- The fused box test (RT_BVH_BOX_FMA; Aila & Laine 2009) ----------------------------------
  * A slab's plane distance (b - o) / d as one fused multiply-add, b inv - o inv, with inv = 1/d and
  * o inv computed once a ray: a quarter fewer instructions a box, 11 % off a SPONZA Whitted frame on
- * the H100. Two hazards, both handled in the per-ray setup (bvh_ray), so the box test itself keeps
- * two fma a slab (and picks each slab's near and far plane by the sign of inv, per ray):
+ * the H100. Three hazards, all handled in the per-ray setup (bvh_ray) or once a box, so the box
+ * test itself keeps one fma a plane:
  *  1. o inv is rounded (half an ulp of o / d), an error that grows with |o| and not with the
  *     distance: a box near an origin far from 0 (a 1e-3 sphere in a 1e5 room) could be culled.
- *     The near plane takes o inv rounded up by a bound of that error, the far plane rounded down
- *     (o_near / o_far below), so the fused distances bracket the exact ones: no box the exact test
- *     keeps is culled.
+ *     A near plane takes o inv rounded up by a bound of that error, a far plane rounded down, so
+ *     the fused distances bracket the exact ones up to the rounding of inv and of the fma. Which of
+ *     a slab's planes (lo, hi) is near depends on the sign of inv only, so the ray carries the
+ *     offset of each (o_lo, o_hi) and the box test takes no per-plane select.
  *  2. A zero direction component (either sign) has no finite inverse. It gets 2^64 of its sign
  *     (RT_BVH_MIN_DIR), so b inv - o inv keeps the exact sign of b - o, and its pad is the ray's
  *     whole length in the scene box: a ray lying in the box's plane (b == o) or inside its slab is
  *     never cut, whichever sign its zero has; one outside the slab by more than a few ulps is.
+ *  3. What is left is relative: inv's own rounding (up to 2.5 ulps in OpenCL C) and the fma's. With
+ *     RT_CONSERVATIVE the exit distance is scaled by 1 + RT_T_PAD (16 ulps) before the comparison,
+ *     so no box the exact test keeps is culled (the watertight default's guarantee, Ize 2013); one
+ *     multiply a box where the exact form costs a subtraction a plane.
  * Coordinates up to 1e19 keep o inv finite. */
 #define RT_BVH_MIN_DIR 5.421010862e-20f    /* 2^-64 */
 #define RT_BVH_ULP_PAD 2.3841858e-7f       /* 2^-22: two ulps, o inv's rounding and the pad's own */
 
 typedef struct {
     float3 inv;      /* 1/d, or +-2^64 where |d| <= RT_BVH_MIN_DIR */
-    float3 o_near;   /* o inv plus its pad: the near plane's distance comes out smaller */
-    float3 o_far;    /* o inv minus its pad: the far plane's distance comes out larger */
+    float3 o_lo;     /* o inv moved for the slab's lo plane: up where it is the near plane, down where far */
+    float3 o_hi;     /* ... and for its hi plane */
+    float tmin;      /* the ray's tmin, +0 for -0 (bvh_span_enter compares bit patterns) */
 } BvhRay;
 
 /* The inverse of direction component d for the fused form: 1/d, or 2^64 of d's sign (-0 too) */
@@ -69,40 +75,57 @@ RT_FN BvhRay bvh_ray(const Ray *ray, float t_exit)
     float3 oi = hadamard3(ray->o, r.inv);
     float3 pad = f3(bvh_origin_pad(ray->d.x, oi.x, t_pad), bvh_origin_pad(ray->d.y, oi.y, t_pad),
                     bvh_origin_pad(ray->d.z, oi.z, t_pad));
-    r.o_near = add3(oi, pad);
-    r.o_far = sub3(oi, pad);
+    float3 o_near = add3(oi, pad), o_far = sub3(oi, pad);
+    /* inv >= 0: lo is the near plane */
+    r.o_lo = f3(r.inv.x >= 0.0f ? o_near.x : o_far.x, r.inv.y >= 0.0f ? o_near.y : o_far.y,
+                r.inv.z >= 0.0f ? o_near.z : o_far.z);
+    r.o_hi = f3(r.inv.x >= 0.0f ? o_far.x : o_near.x, r.inv.y >= 0.0f ? o_far.y : o_near.y,
+                r.inv.z >= 0.0f ? o_far.z : o_near.z);
+    r.tmin = ray->tmin > 0.0f ? ray->tmin : 0.0f;
     return r;
 }
 
-/* One slab in the fused form: near and far plane by the sign of inv (fewer registers than Aila &
- * Laine's min/max of both distances, which would need each plane's pad by that sign as well) */
-RT_FN void clip_slab_fused(float lo, float hi, float inv, float o_near, float o_far, float *t0, float *t1)
+/* Entry and exit of the slabs by the float bit patterns as int32: one three-input integer
+ * min/max instruction where the GPU has one (sm_90's VIMNMX3: ptxas fuses the pair) in place of two
+ * float ones. The int order is the float order on values >= +0, and every negative float is below
+ * every one of those. The entry includes tmin >= +0, so it is the true maximum. The exit is the
+ * true minimum where that is >= +0, and negative where that is negative (the box is behind: culled
+ * either way); -0 reads as below everything, which can only keep a box. */
+RT_FN float bvh_span_enter(float a, float b, float c, float tmin)
 {
-    int forward = inv >= 0.0f;
-    *t0 = rt_max(*t0, rt_fma(forward ? lo : hi, inv, -o_near));
-    *t1 = rt_min(*t1, rt_fma(forward ? hi : lo, inv, -o_far));
+    return rt_as_float(rt_imax(rt_imax(rt_imax(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(tmin)));
+}
+
+RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
+{
+    return rt_as_float(rt_imin(rt_imin(rt_imin(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(t_hit)));
 }
 
 /* Whether the ray's segment meets the child box [lo, hi] before the closest hit so far; its entry
  * distance in *t_enter. Inclusive at hit->t: a box entered exactly there may hold a lower-id
  * triangle at the same t (closer_hit). The ray passed the scene box's clip_ray_box, so it can
- * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA (and not RT_CONSERVATIVE) the slabs
- * take the fused form above, else the exact (b - o) * inv_d of clip_entering_ray_box. */
+ * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
+ * else the exact (b - o) * inv_d of clip_entering_ray_box (scenes far from the origin). */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
 #define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.scene.near_origin), where it costs no leaks */
 #endif
-RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *fused, float4 lo, float4 hi, float t_hit, float *t_enter)
+#define RT_BVH_EXIT_SCALE (1.0f + RT_T_PAD)
+RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, float t_hit, float *t_enter)
 {
-#if RT_CONSERVATIVE || !RT_BVH_BOX_FMA
+#if !RT_BVH_BOX_FMA
     float t_exit;
     return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_hit;
 #else
-    float t0 = ray->tmin, t1 = ray->tmax;
-    clip_slab_fused(lo.x, hi.x, fused->inv.x, fused->o_near.x, fused->o_far.x, &t0, &t1);
-    clip_slab_fused(lo.y, hi.y, fused->inv.y, fused->o_near.y, fused->o_far.y, &t0, &t1);
-    clip_slab_fused(lo.z, hi.z, fused->inv.z, fused->o_near.z, fused->o_far.z, &t0, &t1);
+    float lx = rt_fma(lo.x, r->inv.x, -r->o_lo.x), hx = rt_fma(hi.x, r->inv.x, -r->o_hi.x);
+    float ly = rt_fma(lo.y, r->inv.y, -r->o_lo.y), hy = rt_fma(hi.y, r->inv.y, -r->o_hi.y);
+    float lz = rt_fma(lo.z, r->inv.z, -r->o_lo.z), hz = rt_fma(hi.z, r->inv.z, -r->o_hi.z);
+    float t0 = bvh_span_enter(rt_min(lx, hx), rt_min(ly, hy), rt_min(lz, hz), r->tmin);
+    float t1 = bvh_span_exit(rt_max(lx, hx), rt_max(ly, hy), rt_max(lz, hz), t_hit);
+#if RT_CONSERVATIVE
+    t1 *= RT_BVH_EXIT_SCALE;
+#endif
     *t_enter = t0;
-    return t0 <= t1 && t0 <= t_hit;
+    return t0 <= t1;
 #endif
 }
 

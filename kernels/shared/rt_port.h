@@ -86,6 +86,8 @@
 #define rt_min fminf
 #define rt_fma fmaf
 #define rt_max fmaxf
+#define rt_imin min                                           /* int32 */
+#define rt_imax max
 #define rt_abs fabsf
 #define rt_sqrt sqrtf
 #define rt_pow powf
@@ -113,6 +115,8 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_min fmin
 #define rt_fma fma
 #define rt_max fmax
+#define rt_imin min
+#define rt_imax max
 #define rt_abs fabs
 #define rt_sqrt sqrt
 #define rt_pow pow
