@@ -18,7 +18,7 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, const float4 *__restrict__ origins,
 #else
     if (i >= n_rays)
         return;
-    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, rt_load_once(&origins[i]), rt_load_once(&directions[i]))));
 #endif
 }
 
@@ -33,7 +33,7 @@ RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, const float4 *__restrict__ origin
     if (x >= width || y >= height)
         return;
     int i = y * width + x;
-    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, origins[i], directions[i]));
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, &c_frame, rt_load_once(&origins[i]), rt_load_once(&directions[i]))));
 }
 
 // One thread a pixel; the block shape is the launch's (the paper's Fig. 4 studies it).

@@ -15,7 +15,7 @@ __kernel void trace_rays(RT_SCENE_PARAMS, __global const float4 *restrict origin
     int i = get_global_id(0);
     if (i >= n_rays)
         return;
-    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, frame, rt_load_once(&origins[i]), rt_load_once(&directions[i]))));
 #endif
 }
 
@@ -31,7 +31,7 @@ __kernel void trace_ray_grid(RT_SCENE_PARAMS, __global const float4 *restrict or
     if (x >= width || y >= height)
         return;
     int i = y * width + x;
-    hits[i] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[i], directions[i]));
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, frame, rt_load_once(&origins[i]), rt_load_once(&directions[i]))));
 }
 
 // One work-item a pixel; the work-group shape is the launch's (the paper's Fig. 4 studies it).

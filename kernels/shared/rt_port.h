@@ -88,6 +88,8 @@
 #define rt_max fmaxf
 #define rt_imin min                                           /* int32 */
 #define rt_imax max
+#define rt_load_once(p) __ldcs(p)                              /* streamed: a ray read once, a hit written */
+#define rt_store_once(p, v) __stcs((p), (v))                   /* once (evict first, keeps L1/L2 for the scene) */
 #define rt_abs fabsf
 #define rt_sqrt sqrtf
 #define rt_pow powf
@@ -117,6 +119,8 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_max fmax
 #define rt_imin min
 #define rt_imax max
+#define rt_load_once(p) (*(p))
+#define rt_store_once(p, v) (*(p) = (v))
 #define rt_abs fabs
 #define rt_sqrt sqrt
 #define rt_pow pow
