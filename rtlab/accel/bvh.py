@@ -7,7 +7,8 @@ becomes a leaf when that is cheaper and it holds at most ``max_leaf_size`` trian
 centroids all coincide (no bin split possible) is cut in the middle of its list, so leaves never
 exceed the 15 triangles the device encoding holds. Subtrees are laid out depth first, the first
 child next to its parent. Triangles that cannot be hit (a non-finite corner, zero area) are left
-out, as the kd-tree builder does.
+out, as the kd-tree builder does. With params.spatial_alpha > 0 nodes may also split in space and
+reference a triangle from several leaves (SBVH: rtlab.accel.bvh_splits); off by default.
 
 Device layout (sync with rt_bvh.h), node_data float4, 4 per node = 64 B:
   [4 i + 0] = (c0.lo.x, c0.hi.x, c0.lo.y, c0.hi.y)

@@ -28,8 +28,9 @@ LEAF_BITS = int(kernel_constant("PBVH_LEAF_BITS"))
 TRI_ROWS = int(kernel_constant("PBVH_TRI_ROWS"))
 # SAH costs for packets: a binary node (two box tests on every lane) costs two triangle tests, and
 # leaves may hold up to 15 triangles (2-8 % more Mrays per CPU-second than the GPU BVH's 1.0 and 8
-# on the issue 15 views, most at 256²)
-PACKET_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0)
+# on the issue 15 views, most at 256²); no spatial splits (BvhBuildParams.spatial_alpha): the packet
+# traversal is not checked with triangles referenced by several leaves
+PACKET_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0, spatial_alpha=0.0)
 EMPTY = int(kernel_constant("PBVH_EMPTY"))  # ~0: a leaf of no triangles
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1      # largest row a leaf ref addresses
 
