@@ -180,3 +180,21 @@ def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
 def _default_rays(scene):
     from rtlab.scene.model import camera_rays
     return camera_rays(scene.camera)
+
+
+def test_traversal_bvh_keeps_spatial_splits_only_where_they_lower_the_sah(tmp_path):
+    """The "bvh" traversal's tree (bvh_stats.traversal_bvh, read by device.scene.bvh_accel): the
+    spatially split build where its SAH cost is SPLIT_MIN_GAIN lower (crossing slivers), the plain
+    build otherwise (the default scene, whose cost the splits barely move)."""
+    from rtlab.accel.bvh_stats import SPLIT_BUILD, SPLIT_MIN_GAIN, traversal_bvh
+    from rtlab.device.scene import bvh_accel
+    for (v, f), want_split in ((_slivers(), True), (_default_with_degenerates()[:2], False)):
+        plain, split = build_bvh(v, f), build_bvh(v, f, SPLIT_BUILD)
+        gain = 1.0 - sah_cost(split) / sah_cost(plain)
+        assert (gain >= SPLIT_MIN_GAIN) == want_split, f"SAH gain {gain:.3f}"
+        chosen = traversal_bvh(v, f, cache_dir=tmp_path)
+        assert chosen.params.spatial == want_split
+        assert np.array_equal(chosen.objects, (split if want_split else plain).objects)
+    scene = _sliver_scene()
+    arrays = bvh_accel(scene, None)
+    assert np.array_equal(arrays.objects, traversal_bvh(scene.vertices, scene.faces).objects)

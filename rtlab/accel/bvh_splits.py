@@ -20,7 +20,8 @@ Measured with benchmarks/bench_bvh_quality.py (512², GPU cost proxy 65 nodes + 
 against the build without spatial splits), alpha 1e-5 and 32 bins: SPONZA -33 % primary, -28 %
 diffuse; CONFERENCE +2 % primary, -17 % diffuse; DRAGON -5 %; BUNNY -0.5 %; KITCHEN +13 % primary
 (big walls chopped into pieces that sit deeper, so primary rays find their first hit later), -4 %
-diffuse. Hence off by default.
+diffuse. Off by default in BvhBuildParams; the "bvh" traversal takes the split tree where it lowers
+the SAH cost (rtlab.accel.bvh_stats.traversal_bvh, which also gives the H100 figures).
 """
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
 """Quality figures of a BVH from rtlab.accel.bvh, measured on the host: its SAH cost and a counting
-traversal that mirrors kernels/shared/rt_bvh.h (benchmarks/bench_bvh_quality.py, tests).
+traversal that mirrors kernels/shared/rt_bvh.h (benchmarks/bench_bvh_quality.py, tests); and the
+choice, by SAH cost, between the plain build and the spatial-split one for the "bvh" traversal
+(traversal_bvh).
 
 The counting traversal walks the tree as traverse_bvh does: the ray is clipped to the scene box
 first; a while-while loop tests both child boxes of an inner node against the segment
@@ -13,11 +15,28 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .bvh import LEAF_BITS, MAX_LEAF, Bvh
+from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, load_or_build_bvh
 
 # Instructions a CUDA thread spends per inner-node visit and per triangle test (rt_bvh.h, SASS
 # counts): the GPU cost proxy is NODE_COST nodes + TRI_COST triangles a ray
 NODE_COST, TRI_COST = 65.0, 45.0
+
+
+# The "bvh" traversal's tree: spatial splits (SBVH, alpha 1e-5, 16 bins) where they lower the SAH
+# cost by at least SPLIT_MIN_GAIN, else the plain binned-SAH build. H100, CUDA, Moller, trace() on
+# the peers' views (docs/benchmarks.md, issue 12): SPONZA +36 to +45 %, CONFERENCE +6 % primary at
+# 1024² and +15 % diffuse, DRAGON +2 to +5 %; KITCHEN, whose SAH cost the splits raise (13.4 -> 13.7),
+# -21 to -27 % primary, so it keeps the plain tree; BUNNY gains nothing either way.
+SPLIT_BUILD = BvhBuildParams(spatial_alpha=1e-5)
+SPLIT_MIN_GAIN = 0.02
+
+
+def traversal_bvh(vertices, faces, cache_dir=None) -> Bvh:
+    """The BVH the "bvh" traversal reads (rtlab.device.scene.bvh_accel): both builds from the
+    on-disk cache or built, the spatial-split one kept where its SAH cost is SPLIT_MIN_GAIN lower."""
+    plain, _ = load_or_build_bvh(vertices, faces, BvhBuildParams(), cache_dir)
+    split, _ = load_or_build_bvh(vertices, faces, SPLIT_BUILD, cache_dir)
+    return split if sah_cost(split) <= (1.0 - SPLIT_MIN_GAIN) * sah_cost(plain) else plain
 
 
 def sah_cost(bvh: Bvh, cost_traversal: float = 1.0, cost_intersect: float = 1.0) -> float:
