@@ -182,19 +182,34 @@ def _default_rays(scene):
     return camera_rays(scene.camera)
 
 
+def _big_triangles_over_small_ones(n_small=2000, n_big=20, seed=3):
+    """Small triangles scattered in a unit box, crossed by big slanted ones spanning it (the case
+    spatial splits were made for: the SAH gain is about 20 %)."""
+    rng = np.random.default_rng(seed)
+    small = rng.random((n_small, 1, 3)) + rng.normal(scale=0.01, size=(n_small, 3, 3))
+    y = np.linspace(0.05, 0.95, n_big)
+    zero, one = np.zeros(n_big), np.ones(n_big)
+    big = np.stack([np.stack([zero, y, zero], 1), np.stack([one, y, one], 1), np.stack([one, y + 0.02, zero + 0.9], 1)], 1)
+    v = np.concatenate([small, big]).reshape(-1, 3).astype(np.float32)
+    return v, np.arange(len(v), dtype=np.int32).reshape(-1, 3)
+
+
 def test_traversal_bvh_keeps_spatial_splits_only_where_they_lower_the_sah(tmp_path):
     """The "bvh" traversal's tree (bvh_stats.traversal_bvh, read by device.scene.bvh_accel): the
-    spatially split build where its SAH cost is SPLIT_MIN_GAIN lower (crossing slivers), the plain
-    build otherwise (the default scene, whose cost the splits barely move)."""
+    spatially split build where its SAH cost is SPLIT_MIN_GAIN lower (big triangles across small
+    ones), the plain build otherwise (the default scene, whose cost the splits barely move)."""
     from rtlab.accel.bvh_stats import SPLIT_BUILD, SPLIT_MIN_GAIN, traversal_bvh
     from rtlab.device.scene import bvh_accel
-    for (v, f), want_split in ((_slivers(), True), (_default_with_degenerates()[:2], False)):
+    for (v, f), want_split in ((_big_triangles_over_small_ones(), True), (_default_with_degenerates()[:2], False)):
         plain, split = build_bvh(v, f), build_bvh(v, f, SPLIT_BUILD)
         gain = 1.0 - sah_cost(split) / sah_cost(plain)
         assert (gain >= SPLIT_MIN_GAIN) == want_split, f"SAH gain {gain:.3f}"
         chosen = traversal_bvh(v, f, cache_dir=tmp_path)
         assert chosen.params.spatial == want_split
         assert np.array_equal(chosen.objects, (split if want_split else plain).objects)
-    scene = _sliver_scene()
+    v, f = _big_triangles_over_small_ones()
+    scene = Scene("crossed", v, f, np.zeros(len(f), np.int32), [Material()],
+                  Camera((2.2, 1.7, 2.5), (0.5, 0.5, 0.5)), source="procedural")
     arrays = bvh_accel(scene, None)
-    assert np.array_equal(arrays.objects, traversal_bvh(scene.vertices, scene.faces).objects)
+    assert np.array_equal(arrays.objects, traversal_bvh(v, f).objects)
+    assert len(arrays.objects) > len(f), "the device scene did not get the split tree"
