@@ -213,3 +213,17 @@ def test_traversal_bvh_keeps_spatial_splits_only_where_they_lower_the_sah(tmp_pa
     arrays = bvh_accel(scene, None)
     assert np.array_equal(arrays.objects, traversal_bvh(v, f).objects)
     assert len(arrays.objects) > len(f), "the device scene did not get the split tree"
+
+
+@pytest.mark.parametrize("n_tris", [0, 1, 2, 3])
+@pytest.mark.parametrize("params", [BvhBuildParams(), SBVH], ids=["plain", "sbvh"])
+def test_every_leaf_range_lies_inside_the_object_list(n_tris, params):
+    """The smallest meshes (a one-triangle mesh gets a root holding its leaf twice): no leaf may
+    name objects past the end of the list (the kernel reads them unchecked)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1], [1, 0, 1]], np.float32)
+    f = np.array([[0, 1, 2], [1, 3, 2], [0, 4, 5]], np.int32)[:n_tris]
+    bvh = build_bvh(v, f, params)
+    leaves = bvh.child_ref[bvh.child_ref < 0]
+    ends = [sum(decode_leaf(r)) for r in leaves]
+    assert max(ends) <= len(bvh.objects)
+    assert len(bvh.objects) == n_tris or params.spatial

@@ -34,7 +34,7 @@ from ..kernel_constants import kernel_constant
 from .bvh_splits import best_spatial_split, spatial_partition
 from .cache import atomic_savez, cache_key, load_or_build
 
-FORMAT_VERSION = "bvh2-v1"   # bump when the builder's output for the same inputs changes
+FORMAT_VERSION = "bvh2-v2"   # bump when the builder's output for the same inputs changes
 LEAF_BITS = int(kernel_constant("BVH_LEAF_BITS"))
 MAX_LEAF = (1 << LEAF_BITS) - 1
 NODE_FLOAT4S = int(kernel_constant("BVH_NODE_STRIDE"))
@@ -261,10 +261,10 @@ def _build(order, n, ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices, faces, 
     depth = 1
     top = 0
     if n <= 1:
-        # The root is inner: one leaf (or none) in both slots
-        for s in range(2):
-            work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4], work[top, 5] = 0, s, 0, n, 1, n
-            top += 1
+        # The root is inner: one leaf (or none) in slot 0, copied to slot 1 below (one copy of its
+        # objects: the pool holds n)
+        work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4], work[top, 5] = 0, 0, 0, n, 1, n
+        top += 1
     else:
         work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4], work[top, 5] = -1, 0, 0, n, 0, pool
         top += 1
@@ -329,6 +329,8 @@ def _build(order, n, ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices, faces, 
         work[top + 1, 0], work[top + 1, 1], work[top + 1, 2] = node, 0, start
         work[top + 1, 3], work[top + 1, 4], work[top + 1, 5] = start + n_left, above + 1, right
         top += 2
+    if n <= 1:
+        child_lo[0, 1], child_hi[0, 1], child_ref[0, 1] = child_lo[0, 0], child_hi[0, 0], child_ref[0, 0]
     return (child_lo[:n_nodes].copy(), child_hi[:n_nodes].copy(), child_ref[:n_nodes].copy(), depth,
             objects[:n_objects].copy())
 
