@@ -98,9 +98,20 @@ def parse_defines(text: str, known: dict[str, int | float] | None = None) -> dic
     return out
 
 
+# A grading test process reads no reference file (they hold the solutions): the grader hands it the
+# table as JSON in this file instead (rtlab.labs.grader).
+CONSTANTS_FILE_ENV = "RTLAB_KERNEL_CONSTANTS"
+
+
 @lru_cache(maxsize=1)
 def kernel_constants(shared_dir: Path = REFERENCE_KERNEL_DIR / "shared") -> dict[str, int | float]:
     """Every constant #define of :data:`HEADERS`, by name."""
+    import json
+    import os
+    given = os.environ.get(CONSTANTS_FILE_ENV)
+    if given:
+        table = json.loads(Path(given).read_text())
+        return {str(k): v for k, v in table.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
     known: dict[str, int | float] = {}
     for header in HEADERS:
         path = Path(shared_dir) / header

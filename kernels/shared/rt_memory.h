@@ -136,7 +136,47 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
 #define load_tri_material(tri_materials, tri) (tri_materials)[(tri)]
 #endif
 
+#ifndef RT_COUNT_WORK
+#define RT_COUNT_WORK 0
+#endif
+#if RT_COUNT_WORK
+/* Counted loads: the grader's work budget. Every loader also counts into rt_work, a buffer after
+ * the seven scene buffers (64-bit: an exhaustive walk of a large scene passes 2^31): rt_work[0] the tree's reads (nodes, node data, object list), rt_work[1]
+ * the triangles' (vertices, per-triangle data). A traversal that walks the whole tree reads many
+ * times what the reference reads on the same rays (rtlab.labs.checks). The buffers take opaque types
+ * here, so a read that bypasses the loaders does not compile. Global placement only. */
+#if RT_NODE_MEM != RT_MEM_GLOBAL
+#error "RT_COUNT_WORK needs the global placement (RT_NODE_MEM == RT_MEM_GLOBAL)"
+#endif
+struct RtNodeList;
+struct RtFloat4List;
+struct RtIntList;
+#undef RT_SCENE_PARAMS
+#undef load_node
+#undef load_node_data
+#undef load_tri_data
+#undef load_object
+#undef load_tri_vertex
+#undef load_tri_normal
+#undef load_tri_material
+#define RT_SCENE_PARAMS                                                                         \
+    RT_GLOBAL const struct RtNodeList *nodes, RT_GLOBAL const struct RtFloat4List *node_data,   \
+        RT_GLOBAL const struct RtIntList *objects, RT_GLOBAL const struct RtFloat4List *tris,    \
+        RT_GLOBAL const struct RtFloat4List *tri_data, RT_GLOBAL const struct RtFloat4List *normals, \
+        RT_GLOBAL const struct RtIntList *tri_materials, RT_GLOBAL rt_u64 *rt_work
+#define rt_counted(k, list, type, i) (rt_atomic_inc64(&rt_work[(k)]), ((RT_GLOBAL const type *)(list))[(i)])
+#define load_node(nodes, i) rt_counted(0, nodes, int2, i)
+#define load_node_data(node_data, i) rt_counted(0, node_data, float4, i)
+#define load_object(objects, i) rt_counted(0, objects, int, i)
+#define load_tri_data(tri_data, i) rt_counted(1, tri_data, float4, i)
+#define load_tri_vertex(tris, tri, k) rt_counted(1, tris, float4, 3 * (tri) + (k))
+#define load_tri_normal(normals, tri, k) (((RT_GLOBAL const float4 *)(normals))[3 * (tri) + (k)])
+#define load_tri_material(tri_materials, tri) (((RT_GLOBAL const int *)(tri_materials))[(tri)])
+/* RT_SCENE_PARAMS' names, to pass them on */
+#define RT_SCENE_ARGS nodes, node_data, objects, tris, tri_data, normals, tri_materials, rt_work
+#else
 /* RT_SCENE_PARAMS' names, to pass them on */
 #define RT_SCENE_ARGS nodes, node_data, objects, tris, tri_data, normals, tri_materials
+#endif
 
 #endif /* RT_MEMORY_H */

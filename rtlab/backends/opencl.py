@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import warnings
 from pathlib import Path
 
@@ -110,6 +111,8 @@ class OpenCLProgram(Program):
             const_bufs = [self._constants[c][0] for c in constants]
         except KeyError as e:
             raise KernelBuildError(f"constant {e} was not set before launching {kernel}") from None
+        if self.backend.prebuilt_only:
+            self.backend.prebuilt.ensure(self, kernel, tuple(block))
         event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
         event.wait()
         return (event.profile.end - event.profile.start) * 1e-6
@@ -155,6 +158,8 @@ class OpenCLBackend(Backend):
         self.device_name = self.device.name.strip()
         self.platform_name = f"{self.platform.name.strip()} {self.platform.version.strip()}"
         self._programs: dict = {}
+        self.prebuilt_only = False      # a grading test process: every launch from binaries built in setup
+        self.prebuilt = PoclPrebuilt()
 
     def is_gpu(self) -> bool:
         return bool(self.device.type & _cl().device_type.GPU)
@@ -204,6 +209,19 @@ class OpenCLBackend(Backend):
         prog = OpenCLProgram(self, Path(path), defines, program, log)
         self._programs[key] = prog
         return prog
+
+    def is_pocl(self) -> bool:
+        return "Portable Computing Language" in self.platform.name or "PoCL" in self.platform.version
+
+    def prebuild_for_sandbox(self) -> None:
+        """Build every compiled program's machine code now, while this process may still start the
+        system linker, and from here on launch only from it (rtlab.labs.sandbox): PoCL links a
+        kernel at its first launch otherwise. Does nothing on other OpenCL runtimes (they run
+        kernels on a GPU, not as code in this process)."""
+        if self.is_pocl():
+            for prog in self._programs.values():
+                self.prebuilt.build(prog)
+            self.prebuilt_only = True
 
     def to_device(self, array):
         cl = _cl()
@@ -255,3 +273,51 @@ class OpenCLBackend(Backend):
 
     def synchronize(self):
         self.queue.finish()
+
+
+class PoclPrebuilt:
+    """PoCL's kernel binaries made before a grading test closes its sandbox. Asking PoCL for a
+    program's binaries (CL_PROGRAM_BINARIES) compiles and links every kernel's generic work-group
+    function into its cache (``$POCL_CACHE_DIR/<program hash>/<kernel>/0-0-0/<kernel>.so``); a
+    first launch at a local size looks for a specialised one beside it (``8-8-1-goffs0-smallgrid``)
+    and would start the linker to make it. :meth:`ensure` puts the generic one there instead, which
+    runs any local size (PoCL's own binaries rely on it), at the speed of the specialised one
+    within noise (bunny, 256x256, stack, ropes and bvh-packet renders, PoCL 3.1)."""
+
+    HASH_RE = re.compile(rb"[A-P]{2}/[A-P]{20,}")
+
+    def __init__(self):
+        self.dirs: dict[int, Path] = {}       # id(OpenCLProgram) -> its folder in PoCL's cache
+        self.done: set = set()
+
+    def build(self, prog: "OpenCLProgram") -> None:
+        if id(prog) in self.dirs:
+            return
+        cl = _cl()
+        binary = prog._program.get_info(cl.program_info.BINARIES)[0]
+        m = self.HASH_RE.search(bytes(binary[:4096]))
+        cache = os.environ.get("POCL_CACHE_DIR")
+        if m is None or not cache:
+            raise BackendError("PoCL's program binary names no kernel-cache folder (or $POCL_CACHE_DIR is not set): "
+                               "this PoCL's layout is not one the grader's sandbox knows")
+        self.dirs[id(prog)] = Path(cache) / m.group().decode()
+
+    def ensure(self, prog: "OpenCLProgram", kernel: str, block: tuple) -> None:
+        key = (id(prog), kernel, block)
+        if key in self.done:
+            return
+        folder = self.dirs.get(id(prog))
+        if folder is None:
+            raise BackendError(f"kernel {kernel} of {prog.path.name} was compiled after the grader's sandbox closed: "
+                               f"a grading test compiles every kernel in its setup (a grader bug, not your code)")
+        generic = sorted((folder / kernel).glob("0-0-0*/*.so"))
+        if not generic:
+            raise BackendError(f"PoCL left no generic binary of {kernel} in {folder}: this PoCL's cache layout is not "
+                               f"one the grader's sandbox knows")
+        local = "-".join(str(b) for b in (*block, 1, 1)[:3])
+        for spec in (f"{local}-goffs0-smallgrid", f"{local}-goffs0"):
+            target = folder / kernel / spec / generic[0].name
+            if not target.exists():
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(generic[0], target)
+        self.done.add(key)

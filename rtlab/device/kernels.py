@@ -98,6 +98,8 @@ class Variant:
     ray_memory: str = "registers" # the ray: RAY_MEMORY (RT_RAY_MEM); "shared" is CUDA only
     max_registers: int = 0        # register cap per thread (-maxrregcount / -cl-nv-maxrregcount); 0: none
     ray_order: str = "rows"       # threads to pixels within a block: RAY_ORDERS (RT_RAY_ORDER)
+    count_work: bool = False      # an instrumented build whose loaders count reads (RT_COUNT_WORK): the
+                                  # grader's work budget; global placement only
 
     def __post_init__(self):
         if not 1 <= int(self.short_stack) <= 64:
@@ -112,6 +114,8 @@ class Variant:
             raise VariantError(f"block must be two positive sizes (x, y), got {self.block}")
         if self.max_registers and not 16 <= int(self.max_registers) <= 255:
             raise VariantError(f"max_registers must be 0 (no cap) or 16..255, got {self.max_registers}")
+        if self.count_work and self.node_memory != "global":
+            raise VariantError("count_work counts the loads of the global placement; node_memory must be 'global'")
         if self.ray_order == "morton" and any(b & (b - 1) for b in self.block):
             raise VariantError(f"Morton ray order needs power-of-two block sides, got {self.block[0]}x{self.block[1]}")
 
@@ -127,7 +131,8 @@ class Variant:
         extra = "".join([f"/const-{self.constants}" if self.constants != "constant" else "",
                          f"/ray-{self.ray_memory}" if self.ray_memory != "registers" else "",
                          f"/{self.ray_order}" if self.ray_order != "rows" else "",
-                         f"/maxrreg{self.max_registers}" if self.max_registers else ""])
+                         f"/maxrreg{self.max_registers}" if self.max_registers else "",
+                         "/counted" if self.count_work else ""])
         return f"{traversal}/{self.intersection}/{self.node_memory}/{self.block[0]}x{self.block[1]}{extra}"
 
 
@@ -172,6 +177,8 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         "RT_REFRACTION": int(features.transparent),
         "RT_MAX_DEPTH": max(0, int(features.max_bounces)),
     }
+    if variant.count_work:
+        defines["RT_COUNT_WORK"] = 1
     if variant.traversal in ("bvh", "bvh-packet"):
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.traversal == "bvh-packet":

@@ -41,6 +41,7 @@ class AccelArrays:
 SCENE_ELEMENTS = ((np.int32, 2), (np.float32, 4), (np.int32, 1), (np.float32, 4), (np.float32, 4), (np.float32, 4),
                   (np.int32, 1))
 NO_NODES = np.zeros((1, 2), np.int32)       # the BVH traversals read no kd nodes
+WORK_COUNTERS = 2                           # rt_work of a counting build (rt_memory.h: RT_COUNT_WORK)
 
 
 def kd_accel(scene: Scene, tree: KdTree) -> AccelArrays:
@@ -78,9 +79,46 @@ TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.f
                      "plucker": lambda scene: plucker_tri_data(scene.vertices, scene.faces)}
 
 
+# What a process that must not build (a grading test process: no numba, no cache, no time) was given
+# by the process that made its scene: scene fingerprint -> kd-tree; (fingerprint, family) ->
+# AccelArrays; (fingerprint, intersection test) -> per-triangle rows (host_scene_data).
+_given_trees: dict = {}
+_given_accel: dict = {}
+_given_tri_data: dict = {}
+
+
+def host_scene_data(scene: Scene, variants) -> dict:
+    """Everything a device upload of ``scene`` builds on the host for ``variants`` (the kd-tree, each
+    traversal family's arrays, each test's per-triangle rows), to hand to another process
+    (:func:`use_host_scene_data`), which then uploads without building anything."""
+    tree = scene_kdtree(scene)
+    fingerprint = scene_fingerprint(scene)
+    accel, tri_data = {}, {}
+    for v in variants:
+        family = v.traversal if v.traversal in ACCEL_BUILDERS else "kd"
+        if family not in accel:
+            accel[family] = ACCEL_BUILDERS.get(family, kd_accel)(scene, tree)
+        builder = TRI_DATA_BUILDERS.get(v.intersection)
+        if builder is not None and v.intersection not in tri_data:
+            tri_data[v.intersection] = np.ascontiguousarray(builder(scene), np.float32)
+    return {"fingerprint": fingerprint, "tree": tree, "accel": accel, "tri_data": tri_data}
+
+
+def use_host_scene_data(data: dict) -> None:
+    """Take what :func:`host_scene_data` built in another process for the scene it was made for."""
+    fp = data["fingerprint"]
+    _given_trees[fp] = data["tree"]
+    _given_accel.update({(fp, family): arrays for family, arrays in data["accel"].items()})
+    _given_tri_data.update({(fp, test): rows for test, rows in data["tri_data"].items()})
+
+
 def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=None) -> KdTree:
     """The scene's kd-tree, from the on-disk cache when it was built before."""
     from ..accel.cache import load_or_build_kdtree
+    if params is None and _given_trees:
+        given = _given_trees.get(scene_fingerprint(scene))
+        if given is not None:
+            return given
     tree, _ = load_or_build_kdtree(scene.vertices, scene.faces, params or KdBuildParams(), progress=progress)
     return tree
 
@@ -190,6 +228,8 @@ class DeviceScene:
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
     tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray
     max_material_id: int = 0                        # checked against the scene's materials each use
+    work: object = None                             # the counters of a counting build (Variant.count_work)
+    fingerprint: bytes = b""                        # scene_fingerprint at upload
 
     @classmethod
     def upload(cls, backend, scene: Scene, tree: KdTree | None = None) -> "DeviceScene":
@@ -197,7 +237,7 @@ class DeviceScene:
         host = {"tris": triangle_corners(scene), "normals": triangle_normals(scene),
                 "tri_materials": np.ascontiguousarray(scene.material_ids, np.int32)}
         return cls(backend, scene, tree, {name: cls._upload(backend, a) for name, a in host.items()},
-                   max_material_id=int(host["tri_materials"].max(initial=0)))
+                   max_material_id=int(host["tri_materials"].max(initial=0)), fingerprint=scene_fingerprint(scene))
 
     @staticmethod
     def _upload(backend, array: np.ndarray) -> DeviceArray:
@@ -206,8 +246,9 @@ class DeviceScene:
     def _accel(self, traversal: str):
         family = traversal if traversal in ACCEL_BUILDERS else "kd"
         if family not in self.accel:
-            build = ACCEL_BUILDERS.get(family, kd_accel)
-            arrays = build(self.scene, self.tree)
+            arrays = _given_accel.get((self.fingerprint, family)) if _given_accel else None
+            if arrays is None:
+                arrays = ACCEL_BUILDERS.get(family, kd_accel)(self.scene, self.tree)
             objects = arrays.objects if arrays.objects.size else np.zeros(1, np.int32)
             self.accel[family] = (arrays, [self._upload(self.backend, a)
                                            for a in (arrays.nodes, arrays.node_data, objects)])
@@ -216,7 +257,9 @@ class DeviceScene:
     def _tri_data(self, intersection: str) -> DeviceArray:
         if intersection not in self.tri_data:
             builder = TRI_DATA_BUILDERS.get(intersection)
-            data = np.ascontiguousarray(builder(self.scene) if builder else DUMMY_F4, np.float32)
+            data = _given_tri_data.get((self.fingerprint, intersection)) if _given_tri_data else None
+            if data is None:
+                data = np.ascontiguousarray(builder(self.scene) if builder else DUMMY_F4, np.float32)
             self.tri_data[intersection] = self._upload(self.backend, data)
         return self.tri_data[intersection]
 
@@ -232,7 +275,22 @@ class DeviceScene:
                 a["tri_materials"]]
         if variant.node_memory == "texture":
             return [self._texture(arg, dtype, channels).arg for arg, (dtype, channels) in zip(args, SCENE_ELEMENTS)]
+        if variant.count_work:
+            return [arg.buffer for arg in args] + [self.work_counters()]
         return [arg.buffer for arg in args]
+
+    def work_counters(self):
+        """The two counters a counting build adds to (tree reads, triangle reads), made on first use."""
+        if self.work is None:
+            self.work = self.backend.empty(8 * WORK_COUNTERS)
+            self.backend.fill(self.work, np.zeros(WORK_COUNTERS, np.uint64))
+        return self.work
+
+    def take_work_counts(self) -> np.ndarray:
+        """(tree reads, triangle reads) counted since the last call, as int64; the counters restart at 0."""
+        counts = self.backend.to_host(self.work_counters(), np.uint64, WORK_COUNTERS).astype(np.int64)
+        self.backend.fill(self.work, np.zeros(WORK_COUNTERS, np.uint64))
+        return counts
 
     def _texture(self, array: DeviceArray, dtype, channels):
         if array.texture is None:

@@ -3,15 +3,21 @@ and nvcc read differently marked "ambiguous") and directives. rtlab.labs.cpp eva
 rtlab.labs.submission applies the rule on submitted files to these tokens."""
 from __future__ import annotations
 
+import bisect
 import re
+import time
 from dataclasses import dataclass
 
 TRIGRAPH_RE = re.compile(r"\?\?[=/'()!<>\-]")
-IDENT_RE = re.compile(r"[A-Za-z_$\x80-\xff][A-Za-z0-9_$\x80-\xff]*")
+IDENT_RE = re.compile(r"[A-Za-z_$][A-Za-z0-9_$]*")
+BOM = "\xef\xbb\xbf"           # UTF-8's byte-order mark, as Latin-1 text: clang skips it at a file's start
+NON_ASCII_RE = re.compile(r"[\x80-\xff]+")
+DEADLINE_CHECK = 1 << 12        # tokens between two looks at the clock
 NUMBER_RE = re.compile(r"\.?[0-9](?:[eEpP][+-]|[A-Za-z0-9_.])*")
 PUNCTUATORS = sorted(["%:%:", "...", "<<=", ">>=", "->", "++", "--", "<<", ">>", "<=", ">=", "==", "!=", "&&", "||",
                       "*=", "/=", "%=", "+=", "-=", "&=", "^=", "|=", "##", "<:", ":>", "<%", "%>", "%:", "::"],
                      key=len, reverse=True)
+PUNCT_RE = re.compile("|".join(re.escape(p) for p in PUNCTUATORS))     # longest first
 LITERAL_PREFIXES = ("L", "u", "U", "u8")
 RAW_PREFIXES = ("R", "LR", "uR", "UR", "u8R")
 DIGRAPHS = {"%:": "#", "%:%:": "##", "<:": "[", ":>": "]", "<%": "{", "%>": "}"}
@@ -19,7 +25,7 @@ DIGRAPHS = {"%:": "#", "%:%:": "##", "<:": "[", ":>": "]", "<%": "{", "%>": "}"}
 
 @dataclass
 class Token:
-    kind: str        # ident, number, string, char, punct, other, ambiguous
+    kind: str        # ident, number, string, char, punct, other, ambiguous, nonascii
     text: str        # as written (digraphs spelled out: see .value)
     line: int        # physical line (1-based) where the token starts
     bol: bool        # first token of its logical line (a directive starts with such a '#')
@@ -79,12 +85,18 @@ def _literal_end(s: str, i: int, quote: str) -> int:
     return -1
 
 
-def tokenize(text: str) -> list[Token]:
+def tokenize(text: str, deadline_at: float | None = None) -> list[Token]:
     """Preprocessing tokens of a source (comments dropped). ``text`` is the file decoded as Latin-1
-    (one character a byte, so any file decodes)."""
+    (one character a byte, so any file decodes). A byte-order mark that opens the file is skipped,
+    as clang skips it; any other byte outside ASCII outside comments and string literals is a token
+    of kind "nonascii". Linear in the file's size; past ``deadline_at`` (time.monotonic()) it raises
+    TimeoutError."""
+    if text.startswith(BOM):
+        text = text[len(BOM):]
     toks: list[Token] = []
+    starts = [m.start() for m in re.finditer("\n", text)]
     for m in TRIGRAPH_RE.finditer(text):
-        toks.append(Token("ambiguous", m.group(), text.count("\n", 0, m.start()) + 1, False,
+        toks.append(Token("ambiguous", m.group(), bisect.bisect_right(starts, m.start() - 1) + 1, False,
                           f"the trigraph {m.group()} (compilers disagree on trigraphs: C++17 ignores them)"))
     s, lines = splice_lines(text)
     i, n, bol = 0, len(s), True
@@ -94,7 +106,11 @@ def tokenize(text: str) -> list[Token]:
         toks.append(Token(kind, tok_text, lines[at], bol, why, at))
         bol = False
 
+    steps = 0
     while i < n:
+        steps += 1
+        if deadline_at is not None and steps % DEADLINE_CHECK == 0 and time.monotonic() > deadline_at:
+            raise TimeoutError("the grader's time for reading the submission ran out")
         c = s[i]
         if c == "\n":
             bol = True
@@ -113,6 +129,11 @@ def tokenize(text: str) -> list[Token]:
                 add("ambiguous", "/*", i, "a comment that is never closed")
                 break
             i = j + 2
+            continue
+        m = NON_ASCII_RE.match(s, i)
+        if m:
+            add("nonascii", m.group(), i, "a byte outside ASCII outside a comment or a string")
+            i = m.end()
             continue
         m = IDENT_RE.match(s, i)
         if m:
@@ -152,11 +173,10 @@ def tokenize(text: str) -> list[Token]:
             add("string" if c == '"' else "char", s[i:close], i)
             i = close
             continue
-        for p in PUNCTUATORS:
-            if s.startswith(p, i):
-                add("punct", p, i)
-                i += len(p)
-                break
+        m = PUNCT_RE.match(s, i)
+        if m:
+            add("punct", m.group(), i)
+            i = m.end()
         else:
             add("punct" if c in "#[](){}.&*+-~!/%<>^|?:;=,\\" else "other", c, i)
             i += 1

@@ -1,13 +1,12 @@
-"""A grading test's fixture, made on the host before its process starts (rtlab.labs.grader): the
-scene, the rays (a hidden test's drawn from the bundle's secret) and the float64 reference answers,
-pickled once per process and shared by the gradings in it."""
+"""A grading test's fixture, made by the grader before its process starts (rtlab.labs.grader): the
+scene, the rays (a hidden test's drawn from the bundle's secret) and the float64 reference answers.
+The process gets the inputs (pickled by the grader), never the answers; both are made once per
+grading process and shared by the gradings in it."""
 from __future__ import annotations
 
 import hashlib
 import json
 import pickle
-import shutil
-import tempfile
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -16,8 +15,8 @@ from ..errors import LabError
 from .config import TestSpec
 
 _fixture_lock = threading.Lock()
-_fixture_dir: Path | None = None
 _fixtures: dict = {}
+FIXTURES_KEPT = 48            # the most recent tests' fixtures kept (a grading process grades many submissions)
 _scenes: dict = {}
 # Scenes made in code for grading, beside load_scene's presets: name -> "module:function(size)"
 SCENE_FACTORIES = {"glass": "rtlab.scene.materials:glass_scene"}
@@ -63,24 +62,32 @@ def grading_scene(name: str, size: tuple[int, int]):
     return _scenes[key]
 
 
-def prepare_fixture(spec: TestSpec, **extra) -> Path:
-    """The pickled fixture of a test (scene, rays, reference answers, and ``extra``); made once per
-    process."""
-    global _fixture_dir
+def prepare_test(spec: TestSpec):
+    """A test's Prepared (rtlab.labs.checks.base): the inputs for its process, with everything its
+    scene's upload builds on the host (kd-tree, BVHs, per-triangle rows: the process builds nothing),
+    and the expected answers the grader keeps. Made once per process for the same spec."""
+    from ..device.scene import host_scene_data
     from .checks import KINDS
-    key = json.dumps([spec.as_dict(), extra], sort_keys=True, default=str)
+    key = json.dumps(spec.as_dict(), sort_keys=True, default=str)
     with _fixture_lock:
-        if key in _fixtures and _fixtures[key].is_file():
+        if key in _fixtures:
             return _fixtures[key]
-        if _fixture_dir is None or not _fixture_dir.is_dir():
-            _fixture_dir = Path(tempfile.mkdtemp(prefix="rtlab-fixtures-"))
-            import atexit
-            atexit.register(shutil.rmtree, _fixture_dir, True)
         scene = grading_scene(spec.scene, spec.size)
-        # a kind may grade on its own version of the scene (returned as "scene")
-        fixture = {"scene": scene, **KINDS[spec.kind].prepare(spec, scene), **{k: str(v) for k, v in extra.items()}}
-        path = _fixture_dir / f"{len(_fixtures)}-{spec.name}.pkl"
-        with open(path, "wb") as f:
-            pickle.dump(fixture, f, protocol=pickle.HIGHEST_PROTOCOL)
-        _fixtures[key] = path
-        return path
+        kind = KINDS[spec.kind]
+        prepared = kind.prepare(spec, scene)
+        inputs = prepared.inputs
+        if "scene" in inputs:
+            inputs["host"] = host_scene_data(inputs["scene"], kind.variants(spec, inputs))
+        _fixtures[key] = prepared
+        while len(_fixtures) > FIXTURES_KEPT:
+            _fixtures.pop(next(iter(_fixtures)))
+        return prepared
+
+
+def input_bytes(prepared) -> bytes:
+    """The pickled inputs of a Prepared, made once."""
+    data = getattr(prepared, "_pickled", None)
+    if data is None:
+        data = pickle.dumps(prepared.inputs, protocol=pickle.HIGHEST_PROTOCOL)
+        prepared._pickled = data
+    return data

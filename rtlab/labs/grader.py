@@ -1,4 +1,4 @@
-"""The autograder: a submission compiled in a tree of its own, each test in its own process.
+"""The autograder: a submission compiled in a tree of its own, each test in a sandboxed process.
 
     report = grade("00_primary", "path/to/submission")          # on PoCL by default
     report.score, report.max_score; write_report(report, "results.json")
@@ -9,26 +9,33 @@ How a grading run goes:
    in which every solution of this step and the later ones is stubbed (rtlab.labs.trees). A file
    that is refused stands there as an ``#error``: the tests whose kernels include it score 0 and say
    why, the others run. A file not handed in is graded as the template's (stubbed) version.
-2. The grader prepares each test's fixture on the host (scene, rays, float64 reference answers).
-   Tests hidden until the due date draw their rays from a secret (the bundle's), or from a seed
-   drawn for this run when there is none.
-3. Each test runs in its own process (``python -m rtlab.labs.run_test``) with ``RTLAB_KERNEL_DIR`` on
-   the submission's tree, a memory limit, a setup limit per kernel compile and its own run limit.
-   A compile error (file and line of the student's source), a crash, a hang or a memory blow-up
-   costs that test only. The whole run has a deadline: tests not done by then score 0.
-4. Speed tests run last and alone, against the reference kernels (a copy in a folder of their own):
-   pairs of launches in random order, every timed launch checked, scored by the median of the
-   pairs' time ratios (rtlab.labs.checks.speed).
-5. ``on_update(report)`` gets the report after every test (pending tests at 0), so results.json
-   can be written as the run goes and a run killed from outside still reports.
+2. The grader prepares each test on the host: the inputs (scene, rays; a hidden test's drawn from
+   the bundle's secret) and the float64 reference's answers, which it keeps.
+3. Each test runs in its own process (rtlab.labs.run_test), which holds nothing worth taking: its
+   inputs, the submission's compile tree, a scratch folder. It runs as an unprivileged user when
+   the grader is root, confined by Landlock and, once its kernels are built, by a system-call filter
+   (rtlab.labs.sandbox), with limits on setup, run time and memory. It hands back raw outputs
+   (rtlab.labs.channel); the grader checks them. A compile error, a refused include (the
+   preprocessor's own list, rtlab.labs.deps), a crash, a hang or a forbidden system call costs that
+   test only. The whole run has a deadline: tests not done by then score 0.
+4. Tests that walk the scene with the student's traversal run an instrumented build and are held
+   to a work budget: their reads of the tree and of triangles against the reference kernel's on
+   the same inputs, counted by the reference worker (a process of the grader's that never loads
+   submitted code).
+5. Speed tests run last and alone: the submission's process against the reference worker, pairs of
+   launches in random order, every timed launch checked (rtlab.labs.checks.speed).
+6. ``on_update(report)`` gets the report at the start and after every test (pending tests at 0), so
+   results.json exists from the first second and a run killed from outside still reports.
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import secrets
 import shutil
 import tempfile
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
@@ -36,10 +43,13 @@ from pathlib import Path
 
 from ..errors import LabError
 from .config import LabConfig, TestSpec, load_config
-from .fixtures import prepare_fixture, spec_for_run
-from .processes import ChildResult, Limits, default_jobs, run_child, shorten
+from .fixtures import input_bytes, prepare_test, spec_for_run
+from .processes import ChildResult, Limits, ProcessFailed, TestProcess, default_jobs, run_once, shorten
 from .submission import REFUSED_MARK
-from .trees import StudentTree, build_student_tree, reference_tree
+from .trees import StudentTree, build_student_tree
+
+MAX_NOTE = 2000          # characters of one note in the report
+MAX_NOTES = 30
 
 
 @dataclass
@@ -110,8 +120,8 @@ def compile_message(text: str) -> str:
 
 
 def used_functions(programs: list[dict], tree: Path) -> set[str] | None:
-    """Functions the launched kernels of ``programs`` call (through the tree's headers and macros
-    under each program's defines); None when the process recorded no program."""
+    """Functions the kernels of ``programs`` call (through the tree's headers and macros under each
+    program's defines); None when the process recorded no program."""
     from .cpp import Preprocessor
     if not programs:
         return None
@@ -119,11 +129,80 @@ def used_functions(programs: list[dict], tree: Path) -> set[str] | None:
     for p in programs:
         try:
             pp = Preprocessor([Path(tree) / "shared"], p["defines"]).run(p["path"])
-        except (OSError, RecursionError):
+        except (OSError, RecursionError, ValueError):
             return None
         roots = p["kernels"] or pp.kernels()
         used |= pp.reachable(roots)
     return used
+
+
+def note_text(note: str) -> str:
+    return note if len(note) <= MAX_NOTE else note[:MAX_NOTE - 60] + f" ... ({len(note) - MAX_NOTE + 60:,} more characters cut)"
+
+
+# --------------------------------------------------------------------------------------------------
+# the processes
+# --------------------------------------------------------------------------------------------------
+ENV_PASSED = ("PATH", "LANG", "LC_ALL", "PYTHONPATH", "PYOPENCL_CTX", "OCL_ICD_VENDORS", "OCL_ICD_FILENAMES",
+              "CUDA_HOME", "CUDA_PATH", "CUDA_VISIBLE_DEVICES", "LD_LIBRARY_PATH", "RTLAB_DEVICE",
+              "POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_CPU_MAX_CU_COUNT", "NUMBA_DISABLE_JIT")
+
+
+def process_env(test_dir: Path, kernel_root: Path | None, constants: Path, extra: dict | None = None) -> dict:
+    """What a test process's environment holds: nothing of the grader's but the search paths and
+    device choices above (no secret, no token a grading service sets)."""
+    env = {k: os.environ[k] for k in ENV_PASSED if k in os.environ}
+    env.update(HOME=str(test_dir), TMPDIR=str(test_dir), XDG_CACHE_HOME=str(test_dir / "cache"),
+               PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
+               MKL_NUM_THREADS="1", NUMBA_CACHE_DIR=str(test_dir / "cache" / "numba"),
+               RTLAB_CACHE=str(test_dir / "cache"), RTLAB_NO_CACHE="1", POCL_CACHE_DIR=str(test_dir / "pocl"),
+               RTLAB_KERNEL_CONSTANTS=str(constants))
+    if kernel_root is not None:
+        env["RTLAB_KERNEL_DIR"] = str(kernel_root)
+    env.update(extra or {})
+    return env
+
+
+class ReferenceWorker:
+    """The grader's reference process (``run_test --reference``): the installation's kernels, never a
+    submission's, for the speed tests' reference launches and the work budgets' reference counts.
+    Its kernel cache persists between gradings ($RTLAB_CACHE/grader/pocl-reference)."""
+
+    def __init__(self, work: Path, limits: Limits):
+        from ..paths import user_cache_dir
+        self.dir = work / "reference"
+        self.dir.mkdir(mode=0o700, exist_ok=True)
+        self.lock = threading.Lock()
+        self.ready: set[str] = set()
+        cache = user_cache_dir() / "grader" / "pocl-reference"
+        cache.mkdir(parents=True, exist_ok=True)
+        env = {k: v for k, v in os.environ.items() if k not in ("RTLAB_KERNEL_DIR", "RTLAB_KERNEL_CONSTANTS")}
+        env.update(POCL_CACHE_DIR=str(cache), PYTHONUNBUFFERED="1")
+        self.proc = TestProcess(self.dir, env, limits, argv=["--reference"], sandboxed=False)
+        self.proc.ready = True          # no sandbox to close: every request has the run limit
+
+    def _setup(self, name: str, job: dict, inputs: bytes, run_limit: float) -> None:
+        if name in self.ready:
+            return
+        d = self.dir / name
+        d.mkdir(exist_ok=True)
+        (d / "job.json").write_text(json.dumps(job, default=str))
+        (d / "inputs.pkl").write_bytes(inputs)
+        self.proc.request({"op": "setup", "test": name, "dir": str(d)})
+        self.proc.wait_for(("ready",), run_limit)
+        self.ready.add(name)
+
+    def produce(self, name: str, job: dict, inputs: bytes, request: dict, run_limit: float):
+        """(header, arrays, wall ms) of the reference's launch for test ``name``."""
+        with self.lock:
+            self._setup(name, job, inputs, run_limit)
+            t0 = time.perf_counter()
+            self.proc.request({"op": "produce", "test": name, "request": request})
+            header, arrays = self.proc.wait_for(("result",), run_limit)
+            return header, arrays, (time.perf_counter() - t0) * 1e3
+
+    def close(self) -> None:
+        self.proc.close()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -134,6 +213,7 @@ class GradingRun:
 
     def __init__(self, config: LabConfig, submission: Path, specs: list[TestSpec], backend: str, device,
                  jobs: int, time_scale: float, secret: str, deadline: float, progress, on_update):
+        from . import sandbox
         self.config, self.submission, self.specs = config, submission, specs
         self.backend, self.device, self.jobs, self.time_scale = backend, device, jobs, time_scale
         self.secret = secret
@@ -141,12 +221,25 @@ class GradingRun:
         self.t_start = time.monotonic()
         self.deadline = deadline
         self.deadline_at = self.t_start + deadline
+        self.sandboxed = sandbox.sandbox_enabled()
+        self.user = sandbox.sandbox_user() if self.sandboxed else None
+        if self.sandboxed:
+            why = sandbox.problem(self.user)
+            if why:
+                raise LabError(f"the grader cannot sandbox submitted code here: {why}")
+            sandbox.make_undumpable()
         self.work = Path(tempfile.mkdtemp(prefix="rtlab-grade-"))
-        self.ref_tree: Path | None = None
+        os.chmod(self.work, 0o711 if self.user else 0o700)    # the sandbox user reaches its own folders only
         self.tree: StudentTree | None = None
         self.results: dict[str, TestResult] = {}
         self.notes: list[str] = []
         self.device_name = ""
+        self.reference: ReferenceWorker | None = None
+        self.reference_lock = threading.Lock()
+        self.constants = self.work / "constants.json"
+        from ..kernel_constants import kernel_constants
+        self.constants.write_text(json.dumps(kernel_constants()))
+        os.chmod(self.constants, 0o644)
 
     # -- report ---------------------------------------------------------------------------------
     def report(self) -> GradeReport:
@@ -156,21 +249,22 @@ class GradingRun:
             tests.append(r if r is not None else TestResult(
                 s.name, 0.0, s.points, "not graded: the grading run stopped before this test finished (a time or "
                                        "memory limit of the grading machine?)", s.visibility, "pending"))
+        notes = [note_text(n) for n in self.notes[:MAX_NOTES]]
+        if len(self.notes) > MAX_NOTES:
+            notes.append(f"... and {len(self.notes) - MAX_NOTES} more notes")
         return GradeReport(self.config.step, str(self.submission), self.backend, self.device_name, tests,
-                           round(time.monotonic() - self.t_start, 2), list(self.notes))
+                           round(time.monotonic() - self.t_start, 2), notes)
 
     def _updated(self) -> None:
         if self.on_update:
             self.on_update(self.report())
 
     def _roots(self):
-        roots = [(self.work / "submission", ""), (self.work, "")]
-        if self.ref_tree is not None:
-            roots.insert(0, (self.ref_tree.parent, "reference/"))
-        return roots
+        from ..paths import REFERENCE_KERNEL_DIR
+        return [(REFERENCE_KERNEL_DIR.parent, "reference/"), (self.work / "submission", ""), (self.work, "")]
 
     def finish(self, spec: TestSpec, r: ChildResult) -> TestResult:
-        self.device_name = self.device_name or r.device
+        self.device_name = self.device_name or str(r.info.get("device", ""))[:200]
         status = {"ok": "passed" if r.fraction >= 1.0 else "failed", "deadline": "timeout"}.get(r.status, r.status)
         if r.status == "ok" and 0 < r.fraction < 1.0:
             status = "partial"
@@ -178,15 +272,18 @@ class GradingRun:
         if r.status == "compile_error" and REFUSED_MARK in output:
             status = "refused"
             files = [rel for rel in self.tree.refused if rel in output]
-            output = "not graded: a file this test compiles was refused:\n" + "\n".join(
-                f"  {x}" for rel in (files or self.tree.refused) for x in self.tree.refused[rel])
+            if files or self.tree.refused:
+                output = "not graded: a file this test compiles was refused:\n" + "\n".join(
+                    f"  {x}" for rel in (files or self.tree.refused) for x in self.tree.refused[rel][:20])
+            else:
+                output = "not graded: " + output[output.index(REFUSED_MARK) + len(REFUSED_MARK):]
         elif r.status == "compile_error":
             output = compile_message(output)
         output = shorten(output)
-        if status != "passed" and status not in ("refused", "skipped", "pending"):
+        if status not in ("passed", "refused", "skipped", "pending"):
             note = self.stub_note(r.programs)
             if note:
-                output += "\nnote: " + note
+                output = shorten(output + "\nnote: " + note)
         data = dict(r.data)
         if r.programs:
             data["programs"] = [{"source": _clean(p["path"], self._roots()), "kernels": p["kernels"]}
@@ -214,22 +311,158 @@ class GradingRun:
         return "; ".join(f"{', '.join(fs)} in {rel} still hold{'s' if len(fs) == 1 else ''} the template's stub (TODO)"
                          for rel, fs in by_file.items())
 
+    # -- a test's folder and processes ------------------------------------------------------------
+    def limits(self, spec: TestSpec) -> Limits:
+        return Limits(self.config.setup_limit, spec.time_limit * self.time_scale, self.config.memory_limit_mb,
+                      self.deadline_at)
+
+    def job(self, spec: TestSpec, mode: str = "once", count_work: bool = False) -> dict:
+        from .checks import HARNESS_DIR
+        run_spec = spec.as_dict()
+        run_spec["params"] = {k: v for k, v in run_spec["params"].items() if k != "seed"}   # rays come made
+        return {"spec": run_spec, "step": self.config.step, "backend": self.backend, "device": self.device,
+                "mode": mode, "count_work": count_work, "memory_limit_mb": self.config.memory_limit_mb,
+                "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)]}
+
+    def test_dir(self, spec: TestSpec, prepared, job: dict, suffix: str = "") -> Path:
+        from . import sandbox
+        d = self.work / "tests" / (spec.name + suffix)
+        (self.work / "tests").mkdir(exist_ok=True)
+        os.chmod(self.work / "tests", 0o711 if self.user else 0o700)
+        sandbox.give_to(d, self.user)
+        for name, data in (("job.json", json.dumps(job, default=str).encode()), ("inputs.pkl", input_bytes(prepared))):
+            (d / name).write_bytes(data)
+            if self.user:
+                os.chmod(d / name, 0o644)
+        return d
+
+    def start_env(self, test_dir: Path) -> dict:
+        return process_env(test_dir, self.tree.root, self.constants)
+
+    def reference_worker(self) -> ReferenceWorker:
+        with self.reference_lock:
+            if self.reference is None:
+                self.reference = ReferenceWorker(self.work, Limits(self.config.setup_limit * 4, 120.0,
+                                                                   self.config.memory_limit_mb, self.deadline_at))
+            return self.reference
+
     # -- tests ----------------------------------------------------------------------------------
-    def job_for(self, spec: TestSpec, fixture: Path) -> dict:
-        return {"spec": spec.as_dict(), "step": self.config.step, "backend": self.backend, "device": self.device,
-                "fixture": str(fixture)}
-
-    def run_one(self, spec: TestSpec, fixture: Path) -> ChildResult:
-        limits = Limits(self.config.setup_limit, spec.time_limit * self.time_scale, self.config.memory_limit_mb,
-                        self.deadline_at)
-        return run_child(self.work / "tests" / spec.name, self.job_for(spec, fixture), self.tree.root, limits)
-
-    def fixture_or_error(self, spec: TestSpec, **extra):
+    def prepared_or_error(self, spec: TestSpec):
         try:
-            return prepare_fixture(spec_for_run(spec, self.secret), **extra), None
+            prepared = prepare_test(spec_for_run(spec, self.secret))
         except Exception as e:  # a grader problem, not the student's: say so
-            return None, ChildResult("error", 0.0, f"grader error while preparing this test "
-                                                   f"(not your code): {type(e).__name__}: {e}")
+            return None, ChildResult("error", f"grader error while preparing this test (not your code): "
+                                              f"{type(e).__name__}: {e}")
+        return prepared, None
+
+    def expected(self, prepared) -> dict:
+        """What a check compares with: the prepared answers, and what this grading knows of the
+        submission (its step, the functions it left as stubs)."""
+        return {**prepared.expected, "step": self.config.step,
+                "stubs": sorted({f for fs in self.tree.stubs.values() for f in fs})}
+
+    def run_one(self, spec: TestSpec, prepared) -> ChildResult:
+        """A plain test: its process, then the grader's check of what came back."""
+        from .checks import KINDS
+        kind = KINDS[spec.kind]
+        count = kind.counts_work(spec)
+        job = self.job(spec, count_work=count)
+        d = self.test_dir(spec, prepared, job)
+        r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed)
+        if r.status != "ok":
+            return r
+        return self.check(spec, kind, prepared, r, count)
+
+    def check(self, spec, kind, prepared, r: ChildResult, count: bool) -> ChildResult:
+        from .channel import ChannelError, expect_arrays
+        from .checks import Produced, work_budget_problem
+        try:
+            arrays = expect_arrays(r.arrays, kind.outputs(spec, prepared.inputs))
+            extra = {k: v for k, v in r.arrays.items() if k not in arrays}
+            if count:
+                arrays["work"] = expect_arrays(r.arrays, {"work": ("int64", (2,))})["work"]
+            out = Produced({**extra, **arrays}, r.info)
+            outcome = kind.check(spec, prepared.inputs, self.expected(prepared), out)
+        except ChannelError as e:
+            return replace(r, status="error", output=f"the test process's output is not what the test asked for: {e}")
+        fraction = outcome.fraction
+        output = outcome.output
+        if count and fraction > 0:
+            try:
+                reference = self.reference_counts(spec, prepared)
+            except ProcessFailed as e:
+                return replace(r, status="error", output="grader error (not your code): the reference kernel's count "
+                                                         f"failed: {e.result.output}")
+            problem = work_budget_problem(arrays["work"], reference, float(spec.tolerance["work_budget"]))
+            data = {"work": [int(x) for x in arrays["work"]], "reference_work": [int(x) for x in reference]}
+            outcome.data.update(data)
+            if problem:
+                fraction, output = 0.0, f"{output}\nbut it {problem}"
+            else:
+                ratio = max(int(a) / max(int(b), 1) for a, b in zip(arrays["work"], reference))
+                output = f"{output}; reads {ratio:.2f}x the reference kernel's"
+        status = "skipped" if outcome.skipped else "ok"
+        return replace(r, status=status, fraction=float(min(max(fraction, 0.0), 1.0)), output=output,
+                       data={**r.data, **outcome.data})
+
+    def reference_counts(self, spec: TestSpec, prepared):
+        """(tree reads, triangle reads) of the reference kernel on the test's inputs."""
+        worker = self.reference_worker()
+        job = {**self.job(spec, count_work=True), "sandbox": False, "check_includes": False}
+        header, arrays, _ = worker.produce(spec.name + ".work", job, input_bytes(prepared), {}, 120.0)
+        from .channel import expect_arrays
+        return expect_arrays(arrays, {"work": ("int64", (2,))})["work"]
+
+    def run_speed(self, spec: TestSpec, prepared) -> ChildResult:
+        from .channel import ChannelError, expect_arrays
+        from .checks import KINDS, Produced, time_against_reference
+        kind = KINDS[spec.kind]
+        job = self.job(spec, mode="serve")
+        d = self.test_dir(spec, prepared, job)
+        limits = self.limits(spec)
+        worker = self.reference_worker()
+        ref_job = {**self.job(spec), "sandbox": False, "check_includes": False}
+        t0 = time.monotonic()
+        proc = TestProcess(d, self.start_env(d), limits, self.user, sandboxed=self.sandboxed)
+        run_limit = max(5.0, limits.run / 4)
+
+        class Side:
+            def __init__(self, produce, pause=lambda: None, resume=lambda: None):
+                self.produce, self.pause, self.resume = produce, pause, resume
+
+        def valid(header, arrays, camera):
+            out = expect_arrays(arrays, kind.outputs(spec, prepared.inputs, camera))
+            extra = {k: v for k, v in arrays.items() if k not in out}
+            info = header.get("info") if isinstance(header.get("info"), dict) else {}
+            ms = info.get("kernel_ms")
+            info = {"kernel_ms": float(ms) if isinstance(ms, (int, float)) and not isinstance(ms, bool) else float("nan")}
+            return Produced({**extra, **out}, info)
+
+        def submission_produce(request, camera):
+            t = time.perf_counter()
+            proc.request({"op": "produce", "request": request})
+            header, arrays = proc.wait_for(("result",), run_limit)
+            return valid(header, arrays, camera), (time.perf_counter() - t) * 1e3
+
+        def reference_produce(request, camera):
+            header, arrays, wall = worker.produce(spec.name, ref_job, input_bytes(prepared), request, 120.0)
+            return valid(header, arrays, camera), wall
+
+        try:
+            proc.wait_for(("ready",), None)
+            worker.produce(spec.name, ref_job, input_bytes(prepared), {}, 120.0)      # compile and warm up
+            outcome = time_against_reference(spec, prepared.inputs, self.expected(prepared),
+                                             Side(submission_produce, proc.pause, proc.resume), Side(reference_produce))
+            return ChildResult("ok", outcome.output, data={**proc._data(), **outcome.data}, seconds=time.monotonic() - t0,
+                               programs=proc.programs, fraction=outcome.fraction)
+        except ProcessFailed as e:
+            return replace(e.result, programs=e.result.programs or proc.programs)
+        except ChannelError as e:
+            return ChildResult("error", f"the test process's output is not what the test asked for: {e}",
+                               seconds=time.monotonic() - t0, programs=proc.programs)
+        finally:
+            proc.resume()
+            proc.close()
 
     def blocked(self, spec: TestSpec) -> list[str]:
         return [r for r in spec.requires if r in self.results and not self.results[r].passed]
@@ -237,60 +470,66 @@ class GradingRun:
     def past_deadline(self, spec: TestSpec) -> bool:
         if time.monotonic() < self.deadline_at:
             return False
-        self.finish(spec, ChildResult("deadline", 0.0, f"not run: the grading run reached its deadline of "
-                                                       f"{self.deadline:g} s (grading.toml deadline)"))
+        self.finish(spec, ChildResult("deadline", f"not run: the grading run reached its deadline of "
+                                                  f"{self.deadline:g} s (grading.toml deadline)"))
         return True
 
     def run(self) -> GradeReport:
         from .checks import KINDS
-        self.tree = build_student_tree(self.config, self.submission, self.work / "submission")
+        self._updated()
+        self.tree = build_student_tree(self.config, self.submission, self.work / "submission",
+                                       deadline_at=self.deadline_at)
         self.notes += self.tree.notes
         for rel, refusals in self.tree.refused.items():
-            self.notes.append(f"{rel} was refused (its tests score 0): " + "; ".join(str(r) for r in refusals))
+            shown = "; ".join(str(r) for r in refusals[:10])
+            more = f"; and {len(refusals) - 10} more" if len(refusals) > 10 else ""
+            self.notes.append(f"{rel} was refused (its tests score 0): {shown}{more}")
         self._updated()
         names = {s.name for s in self.specs}
         plain = [s for s in self.specs if not KINDS[s.kind].timed]
         timed = [s for s in self.specs if KINDS[s.kind].timed]
         pending = list(plain)
-        with ThreadPoolExecutor(max_workers=self.jobs) as pool:
-            running = {}
-            while pending or running:
-                for spec in list(pending):
-                    if any(r not in self.results for r in spec.requires if r in names):
+        try:
+            with ThreadPoolExecutor(max_workers=self.jobs) as pool:
+                running = {}
+                while pending or running:
+                    for spec in list(pending):
+                        if any(r not in self.results for r in spec.requires if r in names):
+                            continue
+                        pending.remove(spec)
+                        if self.past_deadline(spec):
+                            continue
+                        if self.blocked(spec):
+                            self.finish(spec, ChildResult("skipped", f"not run: needs {', '.join(self.blocked(spec))} "
+                                                                     f"to pass first"))
+                            continue
+                        prepared, err = self.prepared_or_error(spec)
+                        if err:
+                            self.finish(spec, err)
+                            continue
+                        running[pool.submit(self.run_one, spec, prepared)] = spec
+                    if not running:
+                        if pending:   # load_config lets a test require only earlier, untimed tests
+                            raise LabError(f"tests {', '.join(s.name for s in pending)} wait on tests that never run")
                         continue
-                    pending.remove(spec)
-                    if self.past_deadline(spec):
-                        continue
-                    if self.blocked(spec):
-                        self.finish(spec, ChildResult("skipped", 0.0, f"not run: needs {', '.join(self.blocked(spec))} "
-                                                                      f"to pass first"))
-                        continue
-                    fixture, err = self.fixture_or_error(spec)
-                    if err:
-                        self.finish(spec, err)
-                        continue
-                    running[pool.submit(self.run_one, spec, fixture)] = spec
-                if not running:
-                    if pending:   # load_config lets a test require only earlier, untimed tests
-                        raise LabError(f"tests {', '.join(s.name for s in pending)} wait on tests that never run")
+                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        self.finish(running.pop(fut), fut.result())
+            for spec in timed:
+                if self.past_deadline(spec):
                     continue
-                done, _ = wait(running, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    self.finish(running.pop(fut), fut.result())
-        for spec in timed:
-            if self.past_deadline(spec):
-                continue
-            if self.blocked(spec):
-                self.finish(spec, ChildResult("skipped", 0.0, f"not run: needs {', '.join(self.blocked(spec))} to "
-                                                              f"pass first"))
-                continue
-            if self.ref_tree is None:
-                self.ref_tree = reference_tree()
-            fixture, err = self.fixture_or_error(spec, reference_tree=self.ref_tree)
-            if err:
-                self.finish(spec, err)
-                continue
-            self.finish(spec, self.run_one(spec, fixture))
+                if self.blocked(spec):
+                    self.finish(spec, ChildResult("skipped", f"not run: needs {', '.join(self.blocked(spec))} to "
+                                                             f"pass first"))
+                    continue
+                prepared, err = self.prepared_or_error(spec)
+                if err:
+                    self.finish(spec, err)
+                    continue
+                self.finish(spec, self.run_speed(spec, prepared))
+        finally:
+            if self.reference is not None:
+                self.reference.close()
         self.compile_everything()
         return self.report()
 
@@ -309,8 +548,8 @@ class GradingRun:
         for c in compile_specs:
             old = self.results[c.name]
             self.results[c.name] = replace(old, score=0.0, status=first.status,
-                                           output=f"{old.output}\nbut the kernel of {who} does not build:\n"
-                                                  f"{first.output}")
+                                           output=shorten(f"{old.output}\nbut the kernel of {who} does not build:\n"
+                                                          f"{first.output}"))
         self._updated()
 
 
@@ -338,8 +577,6 @@ def grade(step: str, submission, backend: str = "opencl", device: str | None = N
     finally:
         if not keep:
             shutil.rmtree(run.work, ignore_errors=True)
-        if run.ref_tree is not None:
-            shutil.rmtree(run.ref_tree.parent, ignore_errors=True)
     if keep:
         report.notes.append(f"work directory kept: {run.work}")
     return report
@@ -355,6 +592,4 @@ def grading_failure_report(step: str, submission, backend: str, error: Exception
     except Exception:
         tests = []
     return GradeReport(step, str(submission), backend, "", tests, 0.0,
-                       [f"the grader could not run: {type(error).__name__}: {error}"])
-
-
+                       [f"the grader could not run: {type(error).__name__}: {note_text(str(error))}"])

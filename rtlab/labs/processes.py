@@ -6,16 +6,20 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .sandbox import SIGSYS_TEXT
+
 POLL_S = 0.05
 GRADER_OVERHEAD_MB = 1024       # the grading process itself (scenes, fixtures, numba) beside its tests
-MAX_OUTPUT = 6000     # characters of a test's message (a compiler can print thousands of errors)
+MAX_OUTPUT = 6000     # characters of a test's message (a compiler can print thousands of errors; Gradescope shows 8 KB)
 MEMORY_SIGNS = ("MemoryError", "bad_alloc", "out of memory", "Cannot allocate memory", "Allocation failed")
 
 
@@ -68,18 +72,19 @@ def default_jobs(memory_limit_mb: int) -> int:
 @dataclass
 class ChildResult:
     status: str                 # ok, compile_error, crashed, timeout, memory, error, skipped, deadline
-    fraction: float = 0.0
     output: str = ""
-    data: dict = field(default_factory=dict)
+    arrays: dict = field(default_factory=dict)      # raw outputs (untrusted until a kind's check reads them)
+    info: dict = field(default_factory=dict)
+    data: dict = field(default_factory=dict)        # the grader's own observations (peak memory)
     seconds: float = 0.0
-    device: str = ""
-    programs: list = field(default_factory=list)     # what the process compiled and launched
+    programs: list = field(default_factory=list)    # what the process compiled (sent before its sandbox closed)
+    fraction: float = 0.0                           # set by the grader's check, never by the process
 
 
 @dataclass(frozen=True)
 class Limits:
     setup: float            # seconds to start, and again for each kernel compile
-    run: float              # seconds for the test's own work
+    run: float              # seconds for the test's own work (each request of a serving process)
     memory_mb: int          # the process's RLIMIT_DATA
     deadline_at: float      # time.monotonic() when the whole grading run must end
 
@@ -96,6 +101,7 @@ def _signal_text(sig: int) -> str:
             "SIGABRT": "aborted (the OpenCL runtime gave up, often after an out-of-bounds write)",
             "SIGILL": "illegal instruction",
             "SIGKILL": "killed (out of memory?)",
+            "SIGSYS": SIGSYS_TEXT,
             "SIGXFSZ": "wrote more than a test process may (a kernel printing without end?)"}.get(name, "")
     return f"{name} ({what})" if what else name
 
@@ -110,10 +116,10 @@ def _log_tail(path: Path, lines: int = 8, max_bytes: int = 1 << 16) -> str:
     return "\n".join(text[-lines:])
 
 
-def shorten(text: str) -> str:
-    if len(text) <= MAX_OUTPUT:
+def shorten(text: str, limit: int = MAX_OUTPUT) -> str:
+    if len(text) <= limit:
         return text
-    return text[:MAX_OUTPUT - 200] + f"\n... ({len(text) - MAX_OUTPUT + 200:,} more characters cut)"
+    return text[:limit - 200] + f"\n... ({len(text) - limit + 200:,} more characters cut)"
 
 
 def _vm_kb(pid: int) -> dict:
@@ -129,86 +135,220 @@ def _vm_kb(pid: int) -> dict:
     return out
 
 
-def run_child(test_dir: Path, job: dict, kernel_root: Path, limits: Limits) -> ChildResult:
-    """Run one test process and watch its limits: setup (restarted at each kernel compile), run,
-    memory (the process caps itself; the peak is watched here for the message) and the run's deadline."""
-    test_dir.mkdir(parents=True, exist_ok=True)
-    (test_dir / "spec.json").write_text(json.dumps({**job, "memory_limit_mb": limits.memory_mb}, default=str))
-    env = dict(os.environ, RTLAB_KERNEL_DIR=str(kernel_root), PYTHONUNBUFFERED="1")
-    env.setdefault("POCL_CACHE_DIR", str(test_dir.parent.parent / "pocl-cache"))
-    t0 = time.monotonic()
-    peak_kb = 0
-    with open(test_dir / "log.txt", "wb") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "rtlab.labs.run_test", str(test_dir)], env=env,
-                                stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, cwd=test_dir)
-        run_start = None
-        step_start, step = t0, ""
-        stopped = None
-        while proc.poll() is None:
+class ProcessFailed(Exception):
+    """A test process ended or was stopped without its answer: ``result`` says how."""
+
+    def __init__(self, result: ChildResult):
+        super().__init__(result.output)
+        self.result = result
+
+
+class TestProcess:
+    """One test process (rtlab.labs.run_test) and what it sends: started with its result channel on
+    channel (a pipe) and commands on stdin, watched for its setup limit (restarted at each compile it announces
+    before its sandbox closes), each request's run limit, its memory and the run's deadline."""
+
+    def __init__(self, test_dir: Path, env: dict, limits: Limits, user=None, argv=None, sandboxed: bool = True):
+        from .channel import FrameReader
+        self.dir, self.limits, self.sandboxed = Path(test_dir), limits, sandboxed
+        self.frames: "queue.Queue" = queue.Queue()
+        self.reader = FrameReader()
+        self.programs: list = []
+        self.peak_kb = 0
+        self.t0 = time.monotonic()
+        self.ready = False
+        self.paused = False
+        r, w = os.pipe()
+        self.log = open(self.dir / "log.txt", "wb")
+        kwargs = {}
+        if user is not None:
+            kwargs.update(user=user.uid, group=user.gid, extra_groups=[])
+        self.proc = subprocess.Popen([sys.executable, "-m", "rtlab.labs.run_test", *(argv or [str(self.dir)])],
+                                     env={**env, "RTLAB_RESULT_FD": str(w)}, stdout=self.log,
+                                     stderr=subprocess.STDOUT, stdin=subprocess.PIPE, pass_fds=(w,),
+                                     start_new_session=True, cwd=self.dir, umask=0o077, **kwargs)
+        os.close(w)
+        self.rfd = r
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self):
+        from .channel import ChannelError
+        try:
+            while True:
+                data = os.read(self.rfd, 1 << 16)
+                if not data:
+                    break
+                for frame in self.reader.feed(data):
+                    self.frames.put(frame)
+        except ChannelError as e:
+            self.frames.put(({"event": "broken", "output": str(e)}, {}))
+        except OSError:
+            pass
+        finally:
+            self.frames.put(None)
+
+    # -- watching ---------------------------------------------------------------------------------
+    def _failure(self, phase: str, stopped: tuple | None) -> ChildResult:
+        """What to say when the process ended (or was stopped) without an answer."""
+        data = self._data()
+        seconds = time.monotonic() - self.t0
+        if stopped:
+            why, limit = stopped
+            if why == "deadline":
+                return ChildResult("deadline", "stopped: the grading run reached its deadline (see the note)", data=data,
+                                   seconds=seconds, programs=self.programs)
+            if why == "setup":
+                what = "compiling a kernel" if self.programs else "starting and loading its scene"
+                msg = (f"stopped after {limit:g} s {what} (the setup limit; the reference needs a few seconds): a "
+                       f"compiler stuck on the source (a macro that expands without end?), or an overloaded machine")
+            else:
+                msg = (f"timed out: still running after {limit:g} s (the reference needs a small fraction of that), "
+                       f"killed. An endless loop? (a traversal that never empties its stack or never leaves a "
+                       f"leaf, a loop counter that never advances)")
+            return ChildResult("timeout", msg, data=data, seconds=seconds, programs=self.programs)
+        rc = self.proc.returncode
+        tail = _log_tail(self.dir / "log.txt")
+        if any(sign in tail for sign in MEMORY_SIGNS):
+            return ChildResult("memory", f"ran out of memory while {phase}: a test process may use "
+                                         f"{self.limits.memory_mb} MB (grading.toml memory_limit_mb; the reference needs "
+                                         f"a fraction of that). A macro that expands without end, or a huge array?",
+                               data=data, seconds=seconds, programs=self.programs)
+        if rc is not None and rc < 0:
+            return ChildResult("crashed", f"crashed while {phase}: {_signal_text(-rc)}", data=data, seconds=seconds,
+                               programs=self.programs)
+        return ChildResult("error", f"the test process ended while {phase} (exit status {rc}):\n{tail}", data=data,
+                           seconds=seconds, programs=self.programs)
+
+    def _data(self) -> dict:
+        return {"peak_memory_mb": round(self.peak_kb / 1024, 1)} if self.peak_kb else {}
+
+    def kill(self) -> None:
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        self.proc.wait()
+
+    def wait_for(self, events: tuple[str, ...], run_limit: float | None) -> tuple[dict, dict]:
+        """The next frame whose event is one of ``events`` (``error`` frames raise), watching the
+        limits: the setup limit until the process is ready, then ``run_limit`` from now."""
+        step_start = time.monotonic()
+        run_start = time.monotonic() if self.ready else None
+        while True:
             now = time.monotonic()
-            if run_start is None:
-                if (test_dir / "phase").exists():
-                    run_start = now
-                else:
-                    try:
-                        mark = (test_dir / "setup").read_text()
-                    except OSError:
-                        mark = ""
-                    if mark != step:
-                        step, step_start = mark, now
-            vm = _vm_kb(proc.pid)
-            peak_kb = max(peak_kb, vm.get("VmHWM", 0))
-            if now >= limits.deadline_at:
+            self.peak_kb = max(self.peak_kb, _vm_kb(self.proc.pid).get("VmHWM", 0))
+            stopped = None
+            if now >= self.limits.deadline_at:
                 stopped = ("deadline", 0.0)
-            elif run_start is None and now - step_start > limits.setup:
-                stopped = ("setup", limits.setup)
-            elif run_start is not None and now - run_start > limits.run:
-                stopped = ("run", limits.run)
+            elif run_start is None and now - step_start > self.limits.setup:
+                stopped = ("setup", self.limits.setup)
+            elif run_start is not None and run_limit is not None and now - run_start > run_limit:
+                stopped = ("run", run_limit)
             if stopped:
+                self.kill()
+                raise ProcessFailed(self._failure("running its kernel" if self.ready else "starting", stopped))
+            try:
+                item = self.frames.get(timeout=POLL_S)
+            except queue.Empty:
+                continue
+            if item is None:                    # the channel closed: the process is ending
                 try:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                proc.wait()
-                break
-            time.sleep(POLL_S)
-    seconds = time.monotonic() - t0
-    programs = []
+                    self.proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    self.kill()
+                raise ProcessFailed(self._failure("running its kernel" if self.ready else
+                                                  "starting (compiling or loading)", None))
+            header, arrays = item
+            event = header.get("event")
+            if event == "broken":
+                self.kill()
+                raise ProcessFailed(ChildResult("error", f"the test process broke the grader's protocol: "
+                                                         f"{header.get('output')}", data=self._data(),
+                                                programs=self.programs))
+            if not self.ready:
+                # before its sandbox closes the process runs only the grader's code: its word counts
+                if event == "compile":
+                    step_start = time.monotonic()
+                elif event == "programs":
+                    self.programs = _clean_programs(header.get("programs"))
+                elif event == "ready":
+                    self.ready = True
+                    run_start = time.monotonic()
+            if event == "error":
+                from .channel import clean_text
+                status = header.get("status") if header.get("status") in ("compile_error", "error") else "error"
+                self.kill()
+                raise ProcessFailed(ChildResult(status, clean_text(header.get("output"), 20000), data=self._data(),
+                                                seconds=time.monotonic() - self.t0, programs=self.programs))
+            if event in events:
+                return header, arrays
+
+    def request(self, command: dict) -> None:
+        self.proc.stdin.write((json.dumps(command) + "\n").encode())
+        self.proc.stdin.flush()
+
+    def pause(self) -> None:
+        """Stop the process (and every thread of it) until :meth:`resume`: it cannot run while the
+        reference kernel is timed. Returns once the kernel reports it stopped."""
+        if self.paused:
+            return
+        os.killpg(self.proc.pid, signal.SIGSTOP)
+        self.paused = True
+        for _ in range(200):
+            try:
+                with open(f"/proc/{self.proc.pid}/stat") as f:
+                    if f.read().rsplit(")", 1)[1].split()[0] in ("T", "t", "Z", "X"):
+                        return
+            except OSError:
+                return
+            time.sleep(0.001)
+
+    def resume(self) -> None:
+        if self.paused:
+            try:
+                os.killpg(self.proc.pid, signal.SIGCONT)
+            except ProcessLookupError:
+                pass
+            self.paused = False
+
+    def close(self) -> None:
+        try:
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self.proc.wait(timeout=2)
+        except subprocess.TimeoutExpired:
+            self.kill()
+        self.log.close()
+        try:
+            os.close(self.rfd)
+        except OSError:
+            pass
+
+
+def _clean_programs(programs) -> list:
+    out = []
+    if isinstance(programs, list):
+        for p in programs[:64]:
+            if isinstance(p, dict) and isinstance(p.get("path"), str) and isinstance(p.get("defines"), dict):
+                out.append({"path": p["path"], "defines": {str(k): str(v) for k, v in p["defines"].items()},
+                            "kernels": []})
+    return out
+
+
+def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bool = True) -> ChildResult:
+    """Run a one-shot test process to its result (or its failure)."""
+    proc = TestProcess(test_dir, env, limits, user, sandboxed=sandboxed)
     try:
-        programs = json.loads((test_dir / "programs.json").read_text())
-    except (OSError, ValueError):
-        pass
-    data = {"peak_memory_mb": round(peak_kb / 1024, 1)} if peak_kb else {}
-    if stopped:
-        phase, limit = stopped
-        if phase == "deadline":
-            return ChildResult("deadline", 0.0, "stopped: the grading run reached its deadline (see the note)",
-                               data, seconds=seconds, programs=programs)
-        if phase == "setup":
-            what = "compiling a kernel" if step else "starting and loading its scene"
-            msg = (f"stopped after {limit:g} s {what} (the setup limit; the reference needs a few seconds): "
-                   f"a compiler stuck on the source (a macro that expands without end?), or an overloaded machine")
-        else:
-            msg = (f"timed out: still running after {limit:g} s (the reference needs a small fraction of that), "
-                   f"killed. An endless loop? (a traversal that never empties its stack or never leaves a "
-                   f"leaf, a loop counter that never advances)")
-        return ChildResult("timeout", 0.0, msg, data, seconds=seconds, programs=programs)
-    result_file = test_dir / "result.json"
-    if result_file.is_file():
-        r = json.loads(result_file.read_text())
-        return ChildResult(r["status"], float(r["fraction"]), r["output"], {**r.get("data", {}), **data}, seconds,
-                           r.get("device", ""), programs)
-    rc = proc.returncode
-    phase = "running its kernel" if (test_dir / "phase").exists() else "starting (compiling or loading)"
-    tail = _log_tail(test_dir / "log.txt")
-    if any(sign in tail for sign in MEMORY_SIGNS):
-        return ChildResult("memory", 0.0, f"ran out of memory while {phase}: a test process may use "
-                                          f"{limits.memory_mb} MB (grading.toml memory_limit_mb; the reference needs "
-                                          f"a fraction of that). A macro that expands without end, or a huge array?",
-                           data, seconds=seconds, programs=programs)
-    if rc < 0:
-        return ChildResult("crashed", 0.0, f"crashed while {phase}: {_signal_text(-rc)}", data, seconds=seconds,
-                           programs=programs)
-    return ChildResult("error", 0.0, f"the test process failed while {phase} (exit status {rc}):\n{tail}", data,
-                       seconds=seconds, programs=programs)
+        header, arrays = proc.wait_for(("result",), limits.run)
+        from .channel import clean_text
+        info = header.get("info") if isinstance(header.get("info"), dict) else {}
+        info = {str(k)[:64]: (clean_text(v, 500) if isinstance(v, str) else v) for k, v in list(info.items())[:64]}
+        return ChildResult("ok", arrays=arrays, info=info, data=proc._data(), seconds=time.monotonic() - proc.t0,
+                           programs=proc.programs)
+    except ProcessFailed as e:
+        return e.result
+    finally:
+        proc.close()

@@ -1,139 +1,224 @@
-"""One grading test in its own process: ``python -m rtlab.labs.run_test TEST_DIR``.
+"""A grading test's own process: ``python -m rtlab.labs.run_test TEST_DIR`` (or ``--reference``).
 
-The grader starts this with ``RTLAB_KERNEL_DIR`` pointing at the submission's kernel tree and
-watches it. TEST_DIR/spec.json says what to run. Before anything else the process caps its own
-memory (RLIMIT_DATA: the heap and every private writable mapping, which is what a compiler stuck
-on a preprocessor bomb grows; unlike RLIMIT_AS it does not count the address space PoCL, LLVM and
-glibc reserve without using). Then it writes:
+The grader (rtlab.labs.grader) starts it with its result channel on the file descriptor
+$RTLAB_RESULT_FD (rtlab.labs.channel), commands on stdin, and TEST_DIR holding ``job.json`` (what to run, the
+sandbox's folders) and ``inputs.pkl`` (the test's inputs, made by the grader: scene, rays, camera;
+never an expected answer). In order:
 
-* TEST_DIR/setup: a counter, bumped before each kernel compile (the setup limit is per compile);
-* TEST_DIR/programs.json: every program it compiles (source, defines) and the kernels it launches,
-  for the grader's note on unfinished functions, even when the process dies later;
-* TEST_DIR/phase: "run" once its scene is uploaded and its kernel compiled (the run phase has the
-  test's own time limit);
-* TEST_DIR/result.json at the end.
+1. **Sandbox, first.** One thread only (a Landlock domain binds the threads started after it), then
+   limits and Landlock (rtlab.labs.sandbox). A grader running as root has started it as an
+   unprivileged user.
+2. **Setup** (no submitted code runs): the kind's setup uploads the scene and compiles every kernel
+   the test launches; each compile is checked first by the preprocessor's own list of what the
+   source includes (rtlab.labs.deps). ``{"event": "compile"}`` before each restarts the grader's setup limit.
+3. **Close the sandbox:** PoCL's binaries built (rtlab.backends.opencl), the system-call filter
+   installed; ``{"event": "ready"}``.
+4. **Run:** ``produce`` launches the submission's kernels; its raw outputs go back in one frame
+   (``once``), or one per command (``serve``, the speed tests). The grader checks them.
 
-A crash, a hang, a memory blow-up or a kernel that does not compile ends here and costs this test only.
+``--reference`` is the reference worker: the installation's own kernels, never a submission's, for
+the speed tests' reference launches and the work budgets' reference counts. It holds nothing a
+test process could want, but is not sandboxed: it is the grader's.
 """
 from __future__ import annotations
 
 import json
-import pickle
-import resource
+import os
 import sys
 import time
 import traceback
 from pathlib import Path
 
-
-def _write(path: Path, obj) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(obj, default=float))
-    tmp.replace(path)
+def _send(header: dict, arrays=None) -> None:
+    from rtlab.labs.channel import write_frame
+    write_frame(int(os.environ["RTLAB_RESULT_FD"]), header, arrays)
 
 
-FILE_LIMIT = 256 * 2 ** 20     # bytes a test process may write to one file (its log: a kernel printing without end)
-
-
-def limit_resources(megabytes: int) -> None:
-    limit = int(megabytes) * 2 ** 20
-    resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-    resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_LIMIT, FILE_LIMIT))
+def _error(status: str, output: str) -> None:
+    _send({"event": "error", "status": status, "output": output})
 
 
 class Recorder:
-    """Wraps the backend's compile (and the programs' launch) to keep the setup heartbeat and
-    programs.json current."""
+    """Wraps the backend's compile: a setup heartbeat before each, the preprocessor's include check,
+    and the list of programs (for the grader's note on unfinished functions)."""
 
-    def __init__(self, test_dir: Path):
-        self.dir = test_dir
-        self.compiles = 0
+    def __init__(self, allowed_roots: list[Path] | None):
+        self.allowed = allowed_roots
         self.programs: list[dict] = []
+        self.closed = False
 
     def tick(self) -> None:
-        self.compiles += 1
-        (self.dir / "setup").write_text(str(self.compiles))
-
-    def save(self) -> None:
-        _write(self.dir / "programs.json", self.programs)
+        _send({"event": "compile"})
 
     def wrap(self, backend) -> None:
         compile_ = backend.compile
 
         def compile(path, defines, options=()):
-            self.tick()
+            from rtlab.errors import KernelBuildError
             key = {"path": str(path), "defines": {k: str(v) for k, v in dict(defines).items()}}
-            entry = next((e for e in self.programs if e["path"] == key["path"] and e["defines"] == key["defines"]),
-                         None)
-            if entry is None:
-                entry = {**key, "kernels": []}
-                self.programs.append(entry)
-                self.save()
-            program = compile_(path, defines, options)
-            if not getattr(program, "_recorded", False):
-                launch = program.launch
-
-                def recorded_launch(name, *args, **kwargs):
-                    if name not in entry["kernels"]:
-                        entry["kernels"].append(name)
-                        self.save()
-                    return launch(name, *args, **kwargs)
-
-                program.launch = recorded_launch
-                program._recorded = True
-            return program
+            if key not in [{"path": p["path"], "defines": p["defines"]} for p in self.programs]:
+                if self.closed:
+                    raise KernelBuildError(f"{Path(path).name} was compiled after the sandbox closed: a grading test "
+                                           f"compiles every kernel in its setup (a grader bug, not your code)")
+                self.tick()
+                self.check_includes(backend, Path(path), defines)
+                self.programs.append({**key, "kernels": []})
+                _send({"event": "programs", "programs": self.programs})
+            return compile_(path, defines, options)
 
         backend.compile = compile
 
+    def check_includes(self, backend, path: Path, defines) -> None:
+        if self.allowed is None:
+            return
+        from rtlab.errors import KernelBuildError
+        from rtlab.labs.deps import outside_includes
+        from rtlab.labs.submission import REFUSED_MARK
+        from rtlab.paths import include_dirs
+        try:
+            outside = outside_includes(path, [*include_dirs(path), path.parent], dict(defines), backend.language,
+                                       self.allowed)
+        except RuntimeError as e:
+            raise KernelBuildError(f"{REFUSED_MARK}{path.name}: {e}") from None
+        if outside:
+            raise KernelBuildError(f"{REFUSED_MARK}{path.name} opens {outside[0]}, outside the submission's kernel "
+                                   f"tree (the preprocessor's own list of what it includes)"
+                                   + (f"; also {', '.join(outside[1:4])}" if len(outside) > 1 else ""))
 
-def main(test_dir: str) -> int:
-    d = Path(test_dir)
-    job = json.loads((d / "spec.json").read_text())
-    if job.get("memory_limit_mb"):
-        limit_resources(job["memory_limit_mb"])
-    from rtlab.backends import get_backend
-    from rtlab.errors import KernelBuildError
+
+def _confine(job: dict, test_dir: Path) -> None:
+    """Limits and Landlock, before any thread starts."""
+    from rtlab.labs import sandbox
+    threads = len(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else 1
+    if threads != 1:
+        raise RuntimeError(f"{threads} threads before the sandbox: a Landlock domain would not bind them")
+    sandbox.limit_process(job.get("memory_limit_mb"))
+    policy = sandbox.FilePolicy(read=[*sandbox.system_read_paths(), *(Path(p) for p in job["read"])],
+                                write=[test_dir], write_files=[Path("/dev/null")])
+    sandbox.apply_landlock(policy)
+
+
+def _load(test_dir: Path) -> tuple[dict, dict]:
+    import pickle
+    job = json.loads((test_dir / "job.json").read_text())
+    with open(test_dir / "inputs.pkl", "rb") as f:       # made by the grader, not by submitted code
+        inputs = pickle.load(f)
+    return job, inputs
+
+
+def _setup(job: dict, inputs: dict, backend):
+    from rtlab.device.scene import use_host_scene_data
     from rtlab.labs import checks
     from rtlab.labs.config import TestSpec
     spec = TestSpec.from_dict(job["spec"])
     kind = checks.KINDS[spec.kind]
+    if inputs.get("host") is not None:
+        use_host_scene_data(inputs["host"])
+    inputs["step"] = job["step"]
+    return spec, kind, kind.setup(spec, inputs, backend, bool(job.get("count_work")))
+
+
+def _produce(kind, state, request: dict, backend) -> None:
     t0 = time.perf_counter()
-    with open(job["fixture"], "rb") as f:
-        fixture = pickle.load(f)
-    fixture["step"] = job["step"]
+    out = kind.produce(state, request)
+    info = {**out.info, "device": backend.device_name, "language": backend.language,
+            "produce_s": time.perf_counter() - t0}
+    _send({"event": "result", "status": "ok", "info": info}, out.arrays)
+
+
+def _commands():
+    for line in sys.stdin:
+        line = line.strip()
+        if line:
+            yield json.loads(line)
+
+
+def test_main(test_dir: Path) -> int:
+    job = json.loads((test_dir / "job.json").read_text())
+    if job.get("sandbox", True):
+        _confine(job, test_dir)
+    job, inputs = _load(test_dir)
+    from rtlab.backends import get_backend
+    from rtlab.errors import KernelBuildError
+    from rtlab.labs import checks
+    from rtlab.labs import sandbox
+    from rtlab.paths import kernel_dir
     backend = get_backend(job["backend"], job.get("device"))
-    recorder = Recorder(d)
+    recorder = Recorder([kernel_dir(), checks.HARNESS_DIR] if job.get("check_includes", True) else None)
     recorder.wrap(backend)
     checks.on_setup_compile(recorder.tick)
     try:
-        state = kind.setup(spec, fixture, backend)
+        spec, kind, state = _setup(job, inputs, backend)
     except KernelBuildError as e:
-        _write(d / "result.json", {"fraction": 0.0, "status": "compile_error", "output": str(e),
-                                   "setup_s": time.perf_counter() - t0})
+        _error("compile_error", str(e))
         return 0
-    (d / "phase").write_text("run")
-    t1 = time.perf_counter()
+    if job.get("sandbox", True):
+        if hasattr(backend, "prebuild_for_sandbox"):
+            backend.prebuild_for_sandbox()
+        recorder.closed = True
+        sandbox.install_syscall_filter()
+    _send({"event": "ready"})
     try:
-        outcome = kind.run(state)
-    except KernelBuildError as e:   # a kernel the run compiles on first use
-        _write(d / "result.json", {"fraction": 0.0, "status": "compile_error", "output": str(e),
-                                   "setup_s": t1 - t0})
-        return 0
-    _write(d / "result.json", {"fraction": float(outcome.fraction), "status": "skipped" if outcome.skipped else "ok",
-                               "output": outcome.output,
-                               "data": outcome.data, "setup_s": t1 - t0, "run_s": time.perf_counter() - t1,
-                               "device": backend.device_name})
+        if job.get("mode") == "serve":
+            for cmd in _commands():
+                if cmd.get("op") != "produce":
+                    break
+                _produce(kind, state, cmd.get("request") or {}, backend)
+        else:
+            _produce(kind, state, {}, backend)
+    except KernelBuildError as e:
+        _error("compile_error", str(e))
     return 0
+
+
+def reference_main() -> int:
+    """The reference worker: setup and produce commands for any test, on this installation's kernels."""
+    from rtlab.backends import get_backend
+    from rtlab.errors import KernelBuildError
+    from rtlab.labs import sandbox
+    sandbox.make_undumpable()
+    tests: dict[str, tuple] = {}
+    backends: dict = {}
+    for cmd in _commands():
+        op, name = cmd.get("op"), cmd.get("test", "")
+        try:
+            if op == "setup":
+                job, inputs = _load(Path(cmd["dir"]))
+                key = (job["backend"], job.get("device"))
+                if key not in backends:
+                    backends[key] = get_backend(*key)
+                spec, kind, state = _setup(job, inputs, backends[key])
+                tests[name] = (kind, state, backends[key])
+                _send({"event": "ready", "test": name})
+            elif op == "produce":
+                kind, state, backend = tests[name]
+                _produce(kind, state, cmd.get("request") or {}, backend)
+            else:
+                break
+        except KernelBuildError as e:
+            _error("compile_error", f"the reference kernel does not build (a grader problem): {e}")
+        except Exception as e:
+            _error("error", f"the reference worker failed (a grader problem): {type(e).__name__}: {e}")
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    if argv[:1] == ["--reference"]:
+        return reference_main()
+    return test_main(Path(argv[0]))
 
 
 if __name__ == "__main__":
     try:
-        sys.exit(main(sys.argv[1]))
+        sys.exit(main(sys.argv[1:]))
     except MemoryError:
         traceback.print_exc()
         print("rtlab: out of memory (MemoryError)", file=sys.stderr)
         sys.exit(4)
     except Exception:
         traceback.print_exc()
+        try:
+            _error("error", traceback.format_exc(limit=3)[-2000:])
+        except Exception:
+            pass
         sys.exit(3)

@@ -11,11 +11,18 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
 * ``#define``/``#undef`` of names of the file's own (new names, or what its template defines): a name
   the rest of the kernel tree uses (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
-* no ``asm`` (on PoCL a kernel is CPU code in the grader's process: inline assembly makes system
-  calls; PoCL itself refuses calls to functions outside its kernel library), no builtins that reach
-  the stack behind a function's back (``__builtin_return_address``...), no ``_Pragma``,
-  ``__has_include``, token pasting ``##`` (it builds names the rule could not see), and none of the
-  spellings C and C++ read differently (raw strings, digit separators, trigraphs, unclosed quotes).
+* no ``asm``, no builtins that reach the stack behind a function's back
+  (``__builtin_return_address``...), no attributes that run code when the kernel's binary is loaded
+  (``constructor``, ``ifunc``, ``section``...), no ``_Pragma``, ``__has_include``, token pasting ``##``
+  (it builds names the rule could not see), and none of the spellings C and C++ read differently
+  (raw strings, digit separators, trigraphs, unclosed quotes);
+* ASCII outside comments and string literals: a UTF-8 byte-order mark that opens the file is
+  skipped, as clang skips it; any other byte above 127 there is refused with its line.
+
+This rule reads the text; it is not the boundary. On PoCL a kernel is native code in the process
+that runs it, so what that process holds and may do is (rtlab.labs.sandbox), and what the
+preprocessor opens is checked by the preprocessor itself before each compile (rtlab.labs.deps).
+The lexer is linear in the file's size and stops at the grading run's deadline.
 
 Files are taken as written, byte for byte: a Latin-1 comment compiles as it is; a file that is
 empty, UTF-16 (NUL bytes), a link or not a regular file is refused with a message.
@@ -43,7 +50,13 @@ FORBIDDEN_IDENTIFIERS = {
         "__builtin_setjmp", "__builtin_longjmp", "__builtin_eh_return", "__builtin_unwind_init",
         "__builtin_dwarf_cfa", "__builtin_stack_save", "__builtin_stack_restore", "__builtin_alloca",
         "__builtin_alloca_with_align", "__builtin_call_with_static_chain", "__builtin___clear_cache")},
+    # attributes that run code when the kernel's binary is loaded, before any launch (constructors,
+    # destructors, ifunc resolvers, init sections) or rename symbols the runtime looks up
+    **{name: f"the attribute {name.strip('_')} (code that runs when the kernel's binary is loaded)"
+       for base in ("constructor", "destructor", "ifunc", "alias", "weakref", "section", "init_priority", "symver")
+       for name in (base, f"__{base}__")},
 }
+MAX_REFUSALS = 40       # refusals listed for one file (a file of 10^5 trigraphs is refused in one message)
 
 
 @dataclass(frozen=True)
@@ -111,9 +124,13 @@ def _include_problem(args, headers) -> str | None:
     return f"#include {first.text}: only #include \"NAME.h\" with one of the lab's headers is allowed"
 
 
-def check_source(text: str, relpath: str, rules: SourceRules) -> list[Refusal]:
-    """Everything in a submitted file (decoded as Latin-1) that breaks the rule, in line order."""
-    toks = tokenize(text)
+def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float | None = None) -> list[Refusal]:
+    """Everything in a submitted file (decoded as Latin-1) that breaks the rule, in line order (at
+    most MAX_REFUSALS, then a count of the rest)."""
+    try:
+        toks = tokenize(text, deadline_at)
+    except TimeoutError as e:
+        return [Refusal(relpath, None, f"not read: {e}")]
     problems: list[Refusal] = []
 
     def refuse(line, why):
@@ -122,10 +139,16 @@ def check_source(text: str, relpath: str, rules: SourceRules) -> list[Refusal]:
     for t in toks:
         if t.kind == "ambiguous":
             refuse(t.line, f"{t.why}: compilers read this differently, so it is not allowed")
+        elif t.kind == "nonascii":
+            refuse(t.line, "a byte outside ASCII outside a comment or a string (a byte-order mark, an accented "
+                           "letter, a Unicode quote or space?): kernel code is ASCII; save the file as ASCII or UTF-8 "
+                           "without a byte-order mark, with non-ASCII text only in comments")
         elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
             refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
         elif t.kind == "punct" and t.value == "##":
             refuse(t.line, "token pasting (##) is not allowed in submitted kernels")
+        if len(problems) > 4 * MAX_REFUSALS:
+            break
     directives, _ = split_directives(toks)
     own = rules.defined_by_file.get(relpath, frozenset())
     for d in directives:
@@ -149,6 +172,10 @@ def check_source(text: str, relpath: str, rules: SourceRules) -> list[Refusal]:
                 refuse(d.line, f"#{d.name} {name}: {name} is used by {users[0]}; a submitted file may define only "
                                f"new names of its own (rename yours)")
     problems.sort(key=lambda r: r.line or 0)
+    if len(problems) > MAX_REFUSALS:
+        rest = len(problems) - MAX_REFUSALS
+        problems = problems[:MAX_REFUSALS] + [Refusal(relpath, None, f"... and {rest}{'+' if rest >= 3 * MAX_REFUSALS else ''} "
+                                                                     f"more problems")]
     return problems
 
 

@@ -137,8 +137,9 @@ class StudentTree:
     stubs: dict[str, list[str]] = field(default_factory=dict)           # relpath -> functions still stubbed
 
 
-def build_student_tree(config: LabConfig, submission: Path, out: Path) -> StudentTree:
-    """The tree the submission compiles in (see the module docstring), at ``out/kernels``."""
+def build_student_tree(config: LabConfig, submission: Path, out: Path, deadline_at: float | None = None) -> StudentTree:
+    """The tree the submission compiles in (see the module docstring), at ``out/kernels``. A file
+    not read by ``deadline_at`` (time.monotonic()) is refused."""
     from .regions import splice_regions, stubbed_functions
     ref = reference_kernels()
     tree = StudentTree(Path(out) / "kernels")
@@ -158,7 +159,7 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path) -> Studen
             return None
         try:
             data = read_submitted(src, relpath)
-            problems = check_source(data.decode("latin-1"), relpath, rules)
+            problems = check_source(data.decode("latin-1"), relpath, rules, deadline_at)
             if problems:
                 raise Refused(problems)
         except Refused as e:

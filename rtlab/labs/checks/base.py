@@ -1,5 +1,6 @@
-"""What the kinds of grading test share (rtlab.labs.checks): the outcome of a test, the base class
-of a kind, and how hits and images are compared with the reference and described in a message."""
+"""What the kinds of grading test share (rtlab.labs.checks): the base class of a kind, what crosses
+between the grader and a test process, and how hits and images are compared with the reference and
+described in a message."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -10,6 +11,7 @@ import numpy as np
 
 HARNESS_DIR = Path(__file__).resolve().parent.parent / "harness"
 _SETUP_TICK: Callable[[], None] | None = None    # set in a test process (run_test)
+DEFAULT_WORK_BUDGET = 4.0     # a traversal may read this many times the tree (or triangles) the reference reads
 
 
 def on_setup_compile(tick: Callable[[], None] | None) -> None:
@@ -32,20 +34,77 @@ class Outcome:
     skipped: bool = False        # not graded on this machine (a missing tool); scores 0, says why
 
 
+@dataclass
+class Prepared:
+    """A test's fixture, made by the grader: ``inputs`` go to the test process (the scene, rays,
+    camera: what the kernel needs, never an answer); ``expected`` (the float64 reference's answers)
+    stays with the grader, which checks the process's outputs against it."""
+    inputs: dict
+    expected: dict = field(default_factory=dict)
+
+
+@dataclass
+class Produced:
+    """What a test process hands back: raw arrays and a few numbers (kernel_ms...). Untrusted: the
+    grader checks every array's dtype and shape (Kind.outputs) before a check reads it."""
+    arrays: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+
 class Kind:
+    """A kind of grading test in four stages: ``prepare`` (grader: scene, rays, reference answers),
+    ``setup`` (test process, before any submitted code runs: compile, upload), ``produce`` (test
+    process, runs the submission's kernels, returns raw outputs) and ``check`` (grader: the outputs
+    against the reference). ``counts_work`` kinds also run an instrumented build whose reads are
+    held against the reference kernel's on the same inputs (the work budget)."""
     name = ""
     params: dict = {}            # keys a test of this kind may set, with defaults
     tolerance: dict = {}         # tolerance keys with defaults
     timed = False                # speed tests: run alone, against the reference, after the others
 
-    def prepare(self, spec, scene) -> dict:
+    def prepare(self, spec, scene) -> Prepared:
+        return Prepared({})
+
+    def variants(self, spec, inputs) -> list:
+        """The variants whose host data (trees, per-triangle rows) the test process uploads."""
+        return [spec_variant(spec)]
+
+    def setup(self, spec, inputs, backend, count_work: bool = False):
+        raise NotImplementedError
+
+    def produce(self, state, request: dict) -> Produced:
+        raise NotImplementedError
+
+    def outputs(self, spec, inputs) -> dict:
+        """name -> (dtype, shape) of every array ``produce`` returns."""
         return {}
 
-    def setup(self, spec, fixture, backend):
+    def check(self, spec, inputs, expected, out: Produced) -> Outcome:
         raise NotImplementedError
 
-    def run(self, state) -> Outcome:
-        raise NotImplementedError
+    def counts_work(self, spec) -> bool:
+        """Whether the test holds the kernel's reads to a budget (an instrumented build)."""
+        return False
+
+
+def work_budget_applies(spec) -> bool:
+    """Tests whose kernel walks the scene with the student's traversal on the global placement, with a
+    budget > 0 (tolerance ``work_budget``)."""
+    return (float(spec.tolerance.get("work_budget", 0) or 0) > 0
+            and (spec.params.get("node_memory") or "global") == "global")
+
+
+def work_budget_problem(counts, reference, budget: float) -> str | None:
+    """Why the kernel's reads (tree, triangles) exceed ``budget`` times the reference's, or None."""
+    names = ("the tree (nodes, node data, object lists)", "triangle data")
+    for got, want, what in zip(counts, reference, names):
+        got, want = int(got), int(want)
+        if got > budget * max(want, 1):
+            ratio = got / max(want, 1)
+            return (f"reads {ratio:.0f}x the {what} the reference kernel reads on the same rays ({got:,} against "
+                    f"{want:,}; allowed {budget:g}x): a traversal visits the nodes its ray crosses, in order, "
+                    f"and stops at the first hit it can no longer beat; walking every node is brute force")
+    return None
 
 
 def spec_variant(spec):

@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .base import (HARNESS_DIR, Kind, Outcome, describe_hit_errors, describe_image_error, device_scene_of,
-                   hits_agree, percent_text, pixel_namer, primary_step_of, ray_namer, require_hits, spec_variant,
-                   vec_text)
+from .base import (DEFAULT_WORK_BUDGET, HARNESS_DIR, Kind, Outcome, Prepared, Produced, describe_hit_errors,
+                   describe_image_error, device_scene_of, hits_agree, percent_text, pixel_namer, primary_step_of,
+                   ray_namer, require_hits, spec_variant, vec_text, work_budget_applies)
 
 
 class CompileKind(Kind):
@@ -17,17 +17,23 @@ class CompileKind(Kind):
     params = {"kernel": "", "traversal": "", "intersection": "", "node_memory": "", "block": None,
               "defines": {}}
 
-    def setup(self, spec, fixture, backend):
+    def prepare(self, spec, scene):
+        return Prepared({"scene": scene})
+
+    def setup(self, spec, inputs, backend, count_work=False):
         from ...device.kernels import load_program
         variant = spec_variant(spec)
-        ds = device_scene_of(fixture["scene"], backend)
-        step = spec.params["kernel"] or fixture["step"]
-        program = load_program(backend, step, variant, ds.features(variant), **spec.params["defines"])
-        return program, step
+        ds = device_scene_of(inputs["scene"], backend)
+        step = spec.params["kernel"] or inputs["step"]
+        load_program(backend, step, variant, ds.features(variant), **spec.params["defines"])
+        return step
 
-    def run(self, state):
-        program, step = state
-        return Outcome(1.0, f"{step}{program.backend.extension} compiles on {program.backend.device_name}")
+    def produce(self, state, request):
+        return Produced(info={"step": state})
+
+    def check(self, spec, inputs, expected, out):
+        step = spec.params["kernel"] or expected["step"]
+        return Outcome(1.0, f"{step} compiles on {out.info.get('device', 'the grading device')}")
 
 
 class CameraRaysKind(Kind):
@@ -36,14 +42,16 @@ class CameraRaysKind(Kind):
     name = "camera_rays"
     tolerance = {"direction_abs": 1e-5, "origin_rel": 1e-6}
 
-    def setup(self, spec, fixture, backend):
-        path = HARNESS_DIR / f"camera_rays{backend.extension}"
-        return backend, backend.compile(path, {}), fixture["scene"], spec.tolerance
+    def prepare(self, spec, scene):
+        return Prepared({"scene": scene})
 
-    def run(self, state):
+    def setup(self, spec, inputs, backend, count_work=False):
+        path = HARNESS_DIR / f"camera_rays{backend.extension}"
+        return backend, backend.compile(path, {}), inputs["scene"]
+
+    def produce(self, state, request):
         from ...device.scene import frame_constants
-        from ...scene.model import camera_rays
-        backend, program, scene, tol = state
+        backend, program, scene = state
         cam = scene.camera
         w, h = cam.width, cam.height
         n = w * h
@@ -51,7 +59,17 @@ class CameraRaysKind(Kind):
         bufs = [backend.empty(n * 16) for _ in range(3)]
         program.launch("camera_rays", (w, h), (8, 8), bufs, constants=("frame",))
         o4, d4, inv4 = (backend.to_host(b, np.float32, 4 * n).reshape(n, 4) for b in bufs)
-        return check_camera_rays(cam, o4, d4, inv4, camera_rays(cam), tol)
+        return Produced({"origins": o4, "directions": d4, "inv_d": inv4})
+
+    def outputs(self, spec, inputs):
+        n = inputs["scene"].camera.width * inputs["scene"].camera.height
+        return {k: (np.float32, (n, 4)) for k in ("origins", "directions", "inv_d")}
+
+    def check(self, spec, inputs, expected, out):
+        from ...scene.model import camera_rays
+        cam = inputs["scene"].camera
+        a = out.arrays
+        return check_camera_rays(cam, a["origins"], a["directions"], a["inv_d"], camera_rays(cam), spec.tolerance)
 
 
 def _camera_variants(cam):
@@ -123,13 +141,14 @@ def check_camera_rays(cam, o4, d4, inv4, expected, tol) -> Outcome:
 
 class TraceRaysKind(Kind):
     """Closest hits of rays that are not camera rays (the trace_rays kernel: traversal and triangle
-    test on their own), against the float64 reference.
+    test on their own), against the float64 reference, within a work budget (the reads of the tree
+    and of triangles against the reference kernel's on the same rays).
     rays = "random": origins inside and around the scene box, directions uniform on the sphere;
     rays = "axis": axis-aligned directions, and rays lying in the kd-tree's split planes."""
     name = "trace_rays"
     params = {"rays": "random", "count": 4000, "seed": 7, "tmin": 0.0, "tmax": float("inf"),
               "traversal": "", "intersection": "", "node_memory": "", "block": None}
-    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5}
+    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5, "work_budget": DEFAULT_WORK_BUDGET}
 
     def prepare(self, spec, scene):
         from ...reference import reference_trace
@@ -137,26 +156,45 @@ class TraceRaysKind(Kind):
         p = spec.params
         ref = reference_trace(scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
         require_hits(ref, spec)
-        return {"origins": o, "directions": d, "ref": ref}
+        return Prepared({"scene": scene, "origins": o, "directions": d}, {"ref": ref})
 
-    def setup(self, spec, fixture, backend):
+    def counts_work(self, spec):
+        return work_budget_applies(spec)
+
+    def setup(self, spec, inputs, backend, count_work=False):
         from ...device.kernels import load_program
-        variant = spec_variant(spec)
-        ds = device_scene_of(fixture["scene"], backend)
+        variant = spec_variant(spec).with_(count_work=count_work)
+        ds = device_scene_of(inputs["scene"], backend)
         load_program(backend, primary_step_of(variant), variant, ds.features(variant))
-        return spec, fixture, backend, variant
+        return spec, inputs, backend, variant
 
-    def run(self, state):
-        from ...reference import compare_hits
+    def produce(self, state, request):
         from ...device.tracing import trace
-        spec, fx, backend, variant = state
-        scene, o, d, ref = fx["scene"], fx["origins"], fx["directions"], fx["ref"]
+        spec, inputs, backend, variant = state
         p = spec.params
-        got = trace(scene, o, d, backend=backend, variant=variant, tmin=p["tmin"], tmax=p["tmax"])
-        cmp_ = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
-        ok, msg = describe_hit_errors(cmp_, ref, got.tri, got.t, spec.tolerance, ray_namer(o, d), origins=o)
+        ds = device_scene_of(inputs["scene"], backend)
+        if variant.count_work:
+            ds.take_work_counts()
+        got = trace(inputs["scene"], inputs["origins"], inputs["directions"], backend=backend, variant=variant,
+                    tmin=p["tmin"], tmax=p["tmax"])
+        arrays = {"t": got.t, "tri": got.tri}
+        if variant.count_work:
+            arrays["work"] = ds.take_work_counts()
+        return Produced(arrays, {"kernel_ms": got.kernel_ms})
+
+    def outputs(self, spec, inputs):
+        n = len(inputs["origins"])
+        return {"t": (np.float32, (n,)), "tri": (np.int32, (n,))}
+
+    def check(self, spec, inputs, expected, out):
+        from ...reference import compare_hits
+        scene, o, d, ref = inputs["scene"], inputs["origins"], inputs["directions"], expected["ref"]
+        p = spec.params
+        t, tri = out.arrays["t"], out.arrays["tri"]
+        cmp_ = compare_hits(ref, tri, t, scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
+        ok, msg = describe_hit_errors(cmp_, ref, tri, t, spec.tolerance, ray_namer(o, d), origins=o)
         return Outcome(1.0 if ok else 0.0, msg, {"mismatches": cmp_.n_mismatch, "rays": cmp_.n_rays,
-                                                "kernel_ms": got.kernel_ms})
+                                                "kernel_ms": out.info.get("kernel_ms")})
 
 
 def make_rays(scene, kind: str, count: int, seed: int):
@@ -195,11 +233,11 @@ def make_rays(scene, kind: str, count: int, seed: int):
 
 class RenderKind(Kind):
     """The step's render of the scene's camera view (primary rays, simple shading): every pixel's
-    hit (the render's hit buffer) against the float64 reference, and the image against the
-    reference shading (PSNR)."""
+    hit (the render's hit buffer) against the float64 reference, the image against the reference
+    shading (PSNR), and the render's reads within the work budget."""
     name = "render"
     params = {"traversal": "", "intersection": "", "node_memory": "", "block": None}
-    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5, "min_psnr": 40.0}
+    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5, "min_psnr": 40.0, "work_budget": DEFAULT_WORK_BUDGET}
 
     def prepare(self, spec, scene):
         from ...reference.shading import reference_shade, to_rgb8
@@ -207,50 +245,65 @@ class RenderKind(Kind):
         o, d, ref = reference_camera_hits(scene, scene.camera)
         require_hits(ref, spec)
         img = to_rgb8(reference_shade(scene, o, d, ref.tri, ref.t, ref.u, ref.v))
-        return {"origins": o, "directions": d, "ref": ref,
-                "ref_image": img.reshape(scene.camera.height, scene.camera.width, 3)}
+        return Prepared({"scene": scene},
+                        {"origins": o, "directions": d, "ref": ref,
+                         "ref_image": img.reshape(scene.camera.height, scene.camera.width, 3)})
 
-    def setup(self, spec, fixture, backend):
+    def counts_work(self, spec):
+        return work_budget_applies(spec)
+
+    def setup(self, spec, inputs, backend, count_work=False):
         from ...device.kernels import load_program
-        variant = spec_variant(spec)
-        ds = device_scene_of(fixture["scene"], backend)
+        variant = spec_variant(spec).with_(count_work=count_work)
+        ds = device_scene_of(inputs["scene"], backend)
         load_program(backend, primary_step_of(variant), variant, ds.features(variant), RT_WRITE_HITS=1)
-        return spec, fixture, backend, variant
+        return spec, inputs, backend, variant
 
-    def render(self, state):
+    def produce(self, state, request):
+        """The render of the scene's view (``request["camera"]``: another camera, for speed tests)."""
         from ...device.rendering import render
-        spec, fx, backend, variant = state
-        return render(fx["scene"], backend, variant, write_hits=True)
+        spec, inputs, backend, variant = state
+        scene = camera_scene(inputs["scene"], request)
+        ds = device_scene_of(scene, backend)
+        if variant.count_work:
+            ds.take_work_counts()
+        r = render(scene, fresh_outputs(backend, request), variant, write_hits=True)
+        arrays = {"image": r.image, "t": r.hits.t, "tri": r.hits.tri, "u": r.hits.u, "v": r.hits.v}
+        if variant.count_work:
+            arrays["work"] = ds.take_work_counts()
+        return Produced(arrays, {"kernel_ms": float(r.kernel_ms[0])})
 
-    def time_of(self, result) -> float:
-        return float(result.kernel_ms[0])
+    def outputs(self, spec, inputs, camera=None):
+        cam = camera or inputs["scene"].camera
+        n = cam.width * cam.height
+        return {"image": (np.uint8, (cam.height, cam.width, 3)), "t": (np.float32, (n,)), "tri": (np.int32, (n,)),
+                "u": (np.float32, (n,)), "v": (np.float32, (n,))}
 
-    def check(self, state, result) -> Outcome:
+    def time_of(self, out) -> float:
+        return float(out.info["kernel_ms"])
+
+    def check(self, spec, inputs, expected, out):
         from ...reference import compare_hits
-        spec, fx, _, _ = state
-        scene, ref = fx["scene"], fx["ref"]
-        tri, t = result.hits.tri, result.hits.t
-        cmp_ = compare_hits(ref, tri, t, scene.vertices, scene.faces, fx["origins"], fx["directions"])
+        scene, ref = inputs["scene"], expected["ref"]
+        tri, t = out.arrays["tri"], out.arrays["t"]
+        cmp_ = compare_hits(ref, tri, t, scene.vertices, scene.faces, expected["origins"], expected["directions"])
         ok, msg = describe_hit_errors(cmp_, ref, tri, t, spec.tolerance, pixel_namer(scene.camera.width))
-        img_ok, img_msg, psnr = describe_image_error(result.image, fx["ref_image"], spec.tolerance["min_psnr"],
-                                                     "the reference shading")
+        img_ok, img_msg, psnr = describe_image_error(out.arrays["image"], expected["ref_image"],
+                                                     spec.tolerance["min_psnr"], "the reference shading")
         return Outcome(1.0 if ok and img_ok else 0.0, msg + img_msg,
                        {"mismatches": cmp_.n_mismatch, "pixels": cmp_.n_rays, "psnr": psnr})
 
-    def agree(self, state, got, want) -> tuple[bool, str]:
+    def agree(self, spec, inputs, camera, got, want) -> tuple[bool, str]:
         """Whether a render matches the reference kernel's render of the same view (speed tests)."""
-        spec, fx = state[0], state[1]
-        scene = fx["scene"]
-        ok, why = hits_agree(got.hits.tri, got.hits.t, want.hits.tri, want.hits.t, want.hits.u, want.hits.v, scene,
-                             scene.faces, scene.camera, spec.tolerance, pixel_namer(scene.camera.width))
+        scene = inputs["scene"]
+        g, w = got.arrays, want.arrays
+        ok, why = hits_agree(g["tri"], g["t"], w["tri"], w["t"], w["u"], w["v"], scene, scene.faces, camera,
+                             spec.tolerance, pixel_namer(camera.width))
         if not ok:
             return ok, why
-        img_ok, img_msg, _ = describe_image_error(got.image, want.image, spec.tolerance["min_psnr"],
+        img_ok, img_msg, _ = describe_image_error(g["image"], w["image"], spec.tolerance["min_psnr"],
                                                   "the reference kernel's image")
         return img_ok, img_msg.strip()
-
-    def run(self, state):
-        return self.check(state, self.render(state))
 
 
 class IntersectLoopKind(Kind):
@@ -279,45 +332,83 @@ class IntersectLoopKind(Kind):
         n = min(n, scene.n_triangles)
         ref = reference_trace(scene.vertices, scene.faces[:n], o, d)
         require_hits(ref, spec)
-        if spec.params["triangles"] == "visible":
-            from ...device.scene import scene_kdtree
-            scene_kdtree(scene)    # the test process uploads this scene: build its kd-tree once, here
-        return {"scene": scene, "origins": o, "directions": d, "ref": ref}
+        return Prepared({"scene": scene, "n_tris": n}, {"origins": o, "directions": d, "ref": ref})
 
-    def setup(self, spec, fixture, backend):
+    def setup(self, spec, inputs, backend, count_work=False):
         from ...benches.intersect import INTERSECT_STEP
         from ...device.kernels import load_program
         variant = spec_variant(spec)
-        ds = device_scene_of(fixture["scene"], backend)
+        ds = device_scene_of(inputs["scene"], backend)
         load_program(backend, INTERSECT_STEP, variant, ds.features(variant))
-        return spec, fixture, backend, variant
+        return spec, inputs, backend, variant
 
-    def render(self, state):
+    def produce(self, state, request):
         from ...benches.intersect import intersect_loop
-        spec, fx, backend, variant = state
-        return intersect_loop(fx["scene"], backend, variant.intersection, int(spec.params["n_tris"]),
-                              camera=fx["scene"].camera)
+        spec, inputs, backend, variant = state
+        scene = camera_scene(inputs["scene"], request)
+        r = intersect_loop(scene, fresh_outputs(backend, request), variant.intersection, int(inputs["n_tris"]),
+                           camera=scene.camera)
+        return Produced({"t": r.t, "tri": r.tri}, {"kernel_ms": float(r.kernel_ms[0])})
 
-    def time_of(self, result) -> float:
-        return float(result.kernel_ms[0])
+    def outputs(self, spec, inputs, camera=None):
+        cam = camera or inputs["scene"].camera
+        n = cam.width * cam.height
+        return {"t": (np.float32, (n,)), "tri": (np.int32, (n,))}
 
-    def check(self, state, result) -> Outcome:
+    def time_of(self, out) -> float:
+        return float(out.info["kernel_ms"])
+
+    def check(self, spec, inputs, expected, out):
         from ...reference import compare_hits
-        spec, fx, _, _ = state
-        scene, ref = fx["scene"], fx["ref"]
-        faces = scene.faces[:result.n_tris]
-        cmp_ = compare_hits(ref, result.tri, result.t, scene.vertices, faces, fx["origins"], fx["directions"])
-        ok, msg = describe_hit_errors(cmp_, ref, result.tri, result.t, spec.tolerance,
-                                      pixel_namer(scene.camera.width))
-        return Outcome(1.0 if ok else 0.0, f"{result.isect}, {result.n_tris} triangles in a loop: {msg}",
+        scene, ref, n = inputs["scene"], expected["ref"], int(inputs["n_tris"])
+        faces = scene.faces[:n]
+        t, tri = out.arrays["t"], out.arrays["tri"]
+        cmp_ = compare_hits(ref, tri, t, scene.vertices, faces, expected["origins"], expected["directions"])
+        ok, msg = describe_hit_errors(cmp_, ref, tri, t, spec.tolerance, pixel_namer(scene.camera.width))
+        return Outcome(1.0 if ok else 0.0, f"{spec.params['intersection']}, {n} triangles in a loop: {msg}",
                        {"mismatches": cmp_.n_mismatch, "pixels": cmp_.n_rays})
 
-    def agree(self, state, got, want) -> tuple[bool, str]:
-        spec, fx = state[0], state[1]
-        scene = fx["scene"]
-        nan = np.full(len(want.tri), np.nan)     # the loop keeps no barycentrics: ties by equal t only
-        return hits_agree(got.tri, got.t, want.tri, want.t, nan, nan, scene, scene.faces[:want.n_tris],
-                          scene.camera, spec.tolerance, pixel_namer(scene.camera.width))
+    def agree(self, spec, inputs, camera, got, want) -> tuple[bool, str]:
+        scene = inputs["scene"]
+        nan = np.full(len(want.arrays["tri"]), np.nan)     # the loop keeps no barycentrics: ties by equal t only
+        return hits_agree(got.arrays["tri"], got.arrays["t"], want.arrays["tri"], want.arrays["t"], nan, nan, scene,
+                          scene.faces[:int(inputs["n_tris"])], camera, spec.tolerance, pixel_namer(camera.width))
 
-    def run(self, state):
-        return self.check(state, self.render(state))
+
+def camera_scene(scene, request: dict):
+    """The scene seen through ``request["camera"]`` (a speed test's moved view), or as it is."""
+    cam = request.get("camera")
+    if cam is None:
+        return scene
+    from ...scene.model import Camera
+    return replace(scene, camera=Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov_deg"],
+                                        cam["width"], cam["height"]))
+
+
+def fresh_outputs(backend, request: dict):
+    """The backend, or (speed tests: ``request["fresh"]``) one whose new buffers start as random
+    bytes, so a kernel that skips its work leaves noise, never an earlier answer."""
+    if not request.get("fresh"):
+        return backend
+    if backend not in _fresh:
+        _fresh[backend] = FreshOutputs(backend, np.random.default_rng())
+    return _fresh[backend]
+
+
+_fresh: dict = {}
+
+
+class FreshOutputs:
+    """A backend whose every new buffer starts as random bytes."""
+
+    def __init__(self, backend, rng):
+        self._backend = backend
+        self._rng = rng
+
+    def __getattr__(self, name):
+        return getattr(self._backend, name)
+
+    def empty(self, nbytes):
+        buf = self._backend.empty(nbytes)
+        self._backend.fill(buf, self._rng.integers(0, 256, max(int(nbytes), 4), dtype=np.uint8))
+        return buf

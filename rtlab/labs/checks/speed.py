@@ -2,7 +2,7 @@
 timed launch checked (after Stanford CS149's checker)."""
 from __future__ import annotations
 
-from pathlib import Path
+import random
 
 import numpy as np
 
@@ -15,18 +15,21 @@ TIMEABLE: dict[str, Kind] = {k.name: k for k in (RenderKind(), IntersectLoopKind
 
 
 class SpeedKind(Kind):
-    """Time against the reference kernel on the same device in the same process (after Stanford
-    CS149's checker: relative to a reference on the same machine, never fixed times). ``of`` names
-    the kind whose work is timed (render, intersect_loop, whitted).
+    """Time against the reference kernel on the same device (after Stanford CS149's checker:
+    relative to a reference on the same machine, never fixed times). ``of`` names the kind whose
+    work is timed (render, intersect_loop, whitted).
 
-    Only a correct result is timed (the float64 check of the base kind, first). Then ``warmup`` + ``repeats``
-    pairs of launches, reference and submission in an order drawn at random for each pair, each
-    launch on its own camera (the view moved a little at random) with output buffers that start as
-    random bytes, and each scene uploaded separately for the two. Every launch's output is compared
-    with the reference kernel's on the same camera: a kernel that notices it is being timed (counts
-    its launches, keeps results between them) cannot return early or replay an answer. The score
-    uses the median of the pairs' time ratios, which a busy machine (graders share cores) disturbs
-    far less than the ratio of the two best times, reported beside it. Full points up to
+    The submission and the reference run in two processes (the reference's never loads submitted
+    code), driven by the grader (:func:`time_against_reference`). Only a correct result is timed
+    (the float64 check of the base kind, first). Then ``warmup`` + ``repeats`` pairs of launches,
+    reference and submission in an order drawn at random for each pair, each launch on its own
+    camera (the view moved a little at random) with output buffers that start as random bytes;
+    the submission's process is stopped (SIGSTOP) while the reference's runs. Every launch's output
+    is compared with the reference kernel's on the same camera: a kernel that notices it is being
+    timed cannot return early or replay an answer. A launch's time is the device time its process
+    reports, but never less than the grader's own wall clock around the request minus the most
+    the reference's process ever spent outside its kernel (a process cannot report a time it did
+    not take). The score uses the median of the pairs' time ratios. Full points up to
     ``full_ratio``, none from ``zero_ratio``, linear in between."""
     name = "speed"
     timed = True
@@ -46,58 +49,77 @@ class SpeedKind(Kind):
     def prepare(self, spec, scene):
         return self.base(spec).prepare(spec, scene)
 
-    def setup(self, spec, fixture, backend):
-        import random
-        base = self.base(spec)
-        rng = np.random.default_rng(random.SystemRandom().getrandbits(64))
-        ref_backend, sub_backend = FreshOutputs(backend, rng), FreshOutputs(backend, rng)
-        with use_kernel_tree(fixture["reference_tree"]):
-            ref_state = base.setup(spec, fixture, ref_backend)
-        return base, ref_state, base.setup(spec, fixture, sub_backend), rng
+    def variants(self, spec, inputs):
+        return self.base(spec).variants(spec, inputs)
 
-    def launch(self, base, state, who: str):
-        if who == "reference":
-            with use_kernel_tree(state[1]["reference_tree"]):
-                return base.render(state)
-        return base.render(state)
+    def setup(self, spec, inputs, backend, count_work=False):
+        return self.base(spec).setup(spec, inputs, backend, False)
 
-    def run(self, state):
-        import random
-        base, ref_state, state, rng = state
-        spec, fx = state[0], state[1]
-        checked = base.check(state, base.render(state))
-        if checked.fraction < 1.0:
-            return Outcome(0.0, "not timed: the result is not correct\n" + checked.output, {"correct": False})
-        warmup, repeats = int(spec.params["warmup"]), int(spec.params["repeats"])
-        coin = random.SystemRandom()
-        scene = fx["scene"]
-        camera = scene.camera
-        ref, sub = [], []
-        try:
-            for k in range(warmup + repeats):
-                scene.camera = jitter_camera(camera, rng, self.camera_jitter)
-                order = ("reference", "submission") if coin.random() < 0.5 else ("submission", "reference")
-                results = {who: self.launch(base, ref_state if who == "reference" else state, who) for who in order}
-                ok, why = base.agree(state, results["submission"], results["reference"])
-                if not ok:
-                    return Outcome(0.0, f"timed launch {k + 1} of {warmup + repeats} (each on its own camera, output "
-                                        f"buffers filled with random bytes first) does not match the reference "
-                                        f"kernel's output on the same rays:\n{why}\nevery timed launch is checked",
-                                   {"correct": False, "launch": k + 1})
-                if k >= warmup:
-                    ref.append(base.time_of(results["reference"]))
-                    sub.append(base.time_of(results["submission"]))
-        finally:
-            scene.camera = camera
-        ref, sub = np.array(ref), np.array(sub)
-        ratio = float(np.median(sub / ref))
-        fraction, msg = speed_score(ratio, spec.tolerance)
-        msg = (f"{np.median(sub):.3f} ms (best {sub.min():.3f}), reference {np.median(ref):.3f} ms "
-               f"(best {ref.min():.3f}), {warmup + repeats} pairs in random order on the same device, every "
-               f"launch checked: {msg}")
-        return Outcome(fraction, msg, {"correct": True, "best_ms": float(sub.min()), "reference_ms": float(ref.min()),
-                                       "median_ms": float(np.median(sub)),
-                                       "reference_median_ms": float(np.median(ref)), "ratio": ratio})
+    def produce(self, state, request):
+        return self.base(state[0]).produce(state, request)
+
+    def outputs(self, spec, inputs, camera=None):
+        return self.base(spec).outputs(spec, inputs, camera)
+
+
+def camera_dict(camera) -> dict:
+    return {"eye": [float(x) for x in camera.eye], "target": [float(x) for x in camera.target],
+            "up": [float(x) for x in camera.up], "fov_deg": float(camera.fov_deg), "width": int(camera.width),
+            "height": int(camera.height)}
+
+
+def time_against_reference(spec, inputs, expected, submission, reference) -> Outcome:
+    """A speed test, driven from the grader: ``submission`` and ``reference`` are the two processes
+    (``.produce(request, camera) -> (Produced, wall_ms)``; the submission's also ``.pause()`` and
+    ``.resume()``). Raises what they raise (a crash, a timeout, a broken reply)."""
+    kind = SpeedKind()
+    base = kind.base(spec)
+    scene = inputs["scene"]
+    first, _ = submission.produce({}, scene.camera)
+    checked = base.check(spec, inputs, expected, first)
+    if checked.fraction < 1.0:
+        return Outcome(0.0, "not timed: the result is not correct\n" + checked.output, {"correct": False})
+    warmup, repeats = int(spec.params["warmup"]), int(spec.params["repeats"])
+    coin = random.SystemRandom()
+    rng = np.random.default_rng(coin.getrandbits(64))
+    runs = {"reference": [], "submission": []}
+    for k in range(warmup + repeats):
+        camera = jitter_camera(scene.camera, rng, kind.camera_jitter)
+        request = {"camera": camera_dict(camera), "fresh": True}
+        order = ("reference", "submission") if coin.random() < 0.5 else ("submission", "reference")
+        results = {}
+        for who in order:
+            if who == "reference":
+                submission.pause()
+                try:
+                    results[who] = reference.produce(request, camera)
+                finally:
+                    submission.resume()
+            else:
+                results[who] = submission.produce(request, camera)
+        ok, why = base.agree(spec, inputs, camera, results["submission"][0], results["reference"][0])
+        if not ok:
+            return Outcome(0.0, f"timed launch {k + 1} of {warmup + repeats} (each on its own camera, output "
+                                f"buffers filled with random bytes first) does not match the reference "
+                                f"kernel's output on the same rays:\n{why}\nevery timed launch is checked",
+                           {"correct": False, "launch": k + 1})
+        if k >= warmup:
+            for who in runs:
+                out, wall = results[who]
+                runs[who].append((base.time_of(out), wall))
+    ref_ms = np.array([t for t, _ in runs["reference"]])
+    ref_overhead = max(max(0.0, wall - t) for t, wall in runs["reference"])
+    # a process reports its own device time; it cannot have taken less than the grader saw it take
+    sub_ms = np.array([max(t, wall - ref_overhead) if np.isfinite(t) else wall - ref_overhead
+                       for t, wall in runs["submission"]])
+    ratio = float(np.median(sub_ms / ref_ms))
+    fraction, msg = speed_score(ratio, spec.tolerance)
+    msg = (f"{np.median(sub_ms):.3f} ms (best {sub_ms.min():.3f}), reference {np.median(ref_ms):.3f} ms "
+           f"(best {ref_ms.min():.3f}), {warmup + repeats} pairs in random order on the same device, every "
+           f"launch checked: {msg}")
+    return Outcome(fraction, msg, {"correct": True, "best_ms": float(sub_ms.min()), "reference_ms": float(ref_ms.min()),
+                                   "median_ms": float(np.median(sub_ms)),
+                                   "reference_median_ms": float(np.median(ref_ms)), "ratio": ratio})
 
 
 def jitter_camera(camera, rng, amount: float):
@@ -109,41 +131,6 @@ def jitter_camera(camera, rng, amount: float):
     target = target + rng.normal(size=3) * amount * dist
     return Camera(tuple(float(x) for x in eye), tuple(float(x) for x in target), camera.up, camera.fov_deg,
                   camera.width, camera.height)
-
-
-class FreshOutputs:
-    """A backend whose every new buffer starts as random bytes (a kernel that skips its work leaves
-    noise, never an earlier answer), and which gets its own scene uploads (device scenes are kept per
-    backend object): the reference and the submission share no buffer."""
-
-    def __init__(self, backend, rng):
-        self._backend = backend
-        self._rng = rng
-
-    def __getattr__(self, name):
-        return getattr(self._backend, name)
-
-    def empty(self, nbytes):
-        buf = self._backend.empty(nbytes)
-        self._backend.fill(buf, self._rng.integers(0, 256, max(int(nbytes), 4), dtype=np.uint8))
-        return buf
-
-
-class use_kernel_tree:
-    """Compile from another kernel tree in this process (the reference, beside the submission that
-    $RTLAB_KERNEL_DIR names). The backends search a kernel's own tree first (rtlab.paths.include_dirs)."""
-
-    def __init__(self, root):
-        self.root = Path(root)
-
-    def __enter__(self):
-        from ...paths import use_kernel_dir
-        self.saved = use_kernel_dir(self.root)
-        return self
-
-    def __exit__(self, *exc):
-        from ...paths import use_kernel_dir
-        use_kernel_dir(self.saved)
 
 
 def speed_score(ratio: float, tol: dict) -> tuple[float, str]:

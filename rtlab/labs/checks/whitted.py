@@ -2,7 +2,11 @@
 kernel tree against the float64 Whitted reference, ray tree by ray tree."""
 from __future__ import annotations
 
-from .base import Kind, Outcome, describe_image_error, device_scene_of, percent_text, spec_variant
+import re
+
+import numpy as np
+
+from .base import Kind, Outcome, Prepared, Produced, describe_image_error, device_scene_of, percent_text, spec_variant
 
 
 class WhittedKind(Kind):
@@ -18,45 +22,61 @@ class WhittedKind(Kind):
     def prepare(self, spec, scene):
         from ...reference.whitted import reference_whitted
         p = spec.params
-        return {"ref": reference_whitted(scene, bounces=int(p["bounces"]), shadows=p["shadows"] != "none",
-                                         fresnel=p["fresnel"])}
+        ref = reference_whitted(scene, bounces=int(p["bounces"]), shadows=p["shadows"] != "none", fresnel=p["fresnel"])
+        return Prepared({"scene": scene}, {"ref": ref})
 
-    def setup(self, spec, fixture, backend):
-        from ...errors import KernelBuildError
+    def setup(self, spec, inputs, backend, count_work=False):
         from ...device.kernels import load_program
+        from ...device.whitted import SHADOWS_STEP, TREE_STEP, shading_defines
         variant = spec_variant(spec)
         p = spec.params
-        try:   # compile here, as render_whitted will, so the test's time limit covers only the run
-            from ...device.whitted import SHADOWS_STEP, TREE_STEP, shading_defines
-            ds = device_scene_of(fixture["scene"], backend)
-            features = ds.features(variant)
-            tree = int(p["bounces"]) > 0
-            extra = shading_defines(features, p["shadows"], int(p["bounces"]), p["fresnel"], bool(p["compact"]),
-                                    True, tree)
-            load_program(backend, TREE_STEP if tree else SHADOWS_STEP, variant, features, **extra)
-        except KernelBuildError:
-            raise
-        except Exception:   # the run compiles what it needs anyway
-            pass
-        return spec, fixture, backend, variant
+        # compile here what render_whitted will launch: the run phase builds nothing
+        ds = device_scene_of(inputs["scene"], backend)
+        features = ds.features(variant)
+        tree = int(p["bounces"]) > 0
+        extra = shading_defines(features, p["shadows"], int(p["bounces"]), p["fresnel"], bool(p["compact"]),
+                                True, tree)
+        load_program(backend, TREE_STEP if tree else SHADOWS_STEP, variant, features, **extra)
+        return spec, inputs, backend, variant
 
-    def render(self, state):
+    def produce(self, state, request):
         from ...device.whitted import render_whitted
-        spec, fx, backend, variant = state
+        from .hits import camera_scene, fresh_outputs
+        spec, inputs, backend, variant = state
         p = spec.params
-        return render_whitted(fx["scene"], backend, variant, shadows=p["shadows"], bounces=int(p["bounces"]),
-                              compact=bool(p["compact"]), fresnel=p["fresnel"], write_hits=True)
+        r = render_whitted(camera_scene(inputs["scene"], request), fresh_outputs(backend, request), variant,
+                           shadows=p["shadows"], bounces=int(p["bounces"]), compact=bool(p["compact"]),
+                           fresnel=p["fresnel"], write_hits=True)
+        tree = r.tree if r.tree is not None else {"P": r.hits.tri}
+        return Produced({"image": r.image, **{f"tree_{node}": np.asarray(ids, np.int32) for node, ids in tree.items()}},
+                        {"kernel_ms": float(r.frame_ms[0])})
 
-    def time_of(self, result) -> float:
-        return float(result.frame_ms[0])
+    def outputs(self, spec, inputs, camera=None):
+        cam = camera or inputs["scene"].camera
+        n = cam.width * cam.height
+        return {"image": (np.uint8, (cam.height, cam.width, 3)), "tree_P": (np.int32, (n,))}
 
-    def check(self, state, result) -> Outcome:
+    def tree_of(self, spec, out: Produced, n: int) -> dict:
+        """The ray tree a test process returned: node name -> (n,) int32; nodes other than the
+        primary only as deep as the test's bounces ("R", "T", "RT"...)."""
+        tree = {}
+        depth = int(spec.params["bounces"])
+        for name, ids in out.arrays.items():
+            m = re.fullmatch(r"tree_(P[RT]*)", name)
+            if m and len(m.group(1)) <= depth + 1 and ids.dtype == np.int32 and ids.shape == (n,):
+                tree[m.group(1)] = ids
+        return tree
+
+    def time_of(self, out) -> float:
+        return float(out.info["kernel_ms"])
+
+    def check(self, spec, inputs, expected, out):
         from ...reference.whitted import NO_RAY, first_tree_difference, whitted_error
-        spec, fx, _, _ = state
-        ref, tol = fx["ref"], spec.tolerance
-        tree = result.tree if result.tree is not None else {"P": result.hits.tri}
-        err = whitted_error(result.image, tree, ref)
-        w = fx["scene"].camera.width
+        ref, tol = expected["ref"], spec.tolerance
+        w = inputs["scene"].camera.width
+        image = out.arrays["image"]
+        tree = self.tree_of(spec, out, image.shape[0] * image.shape[1])
+        err = whitted_error(image, tree, ref)
         problems = []
         if err.tree_pixels > tol["tree_fraction"] * err.pixels:
             what = lambda tri: "no ray" if tri == NO_RAY else "a miss" if tri < 0 else f"triangle {tri}"
@@ -67,7 +87,7 @@ class WhittedKind(Kind):
         if err.color_max_same_tree > tol["color_max"]:
             problems.append(f"where the ray trees agree, colours are off by up to {err.color_max_same_tree}/255 "
                             f"(allowed {tol['color_max']}/255; 99th percentile {err.color_p99_same_tree:.0f}/255)")
-        img_ok, img_msg, psnr = describe_image_error(result.image, ref.image, tol["min_psnr"], "the float64 reference")
+        img_ok, img_msg, psnr = describe_image_error(image, ref.image, tol["min_psnr"], "the float64 reference")
         if not img_ok:
             problems.append(img_msg.strip())
         data = {"tree_pixels": err.tree_pixels, "pixels": err.pixels, "color_max": err.color_max_same_tree, "psnr": psnr}
@@ -75,15 +95,13 @@ class WhittedKind(Kind):
             return Outcome(0.0, "\n".join(problems), data)
         return Outcome(1.0, f"{err.summary()}", data)
 
-    def agree(self, state, got, want) -> tuple[bool, str]:
+    def agree(self, spec, inputs, camera, got, want) -> tuple[bool, str]:
         from types import SimpleNamespace
         from ...reference.whitted import whitted_error
-        tol = state[0].tolerance
-
-        def tree_of(result):
-            return result.tree if result.tree is not None else {"P": result.hits.tri}
-
-        err = whitted_error(got.image, tree_of(got), SimpleNamespace(image=want.image, tree=tree_of(want)))
+        tol = spec.tolerance
+        n = camera.width * camera.height
+        err = whitted_error(got.arrays["image"], self.tree_of(spec, got, n),
+                            SimpleNamespace(image=want.arrays["image"], tree=self.tree_of(spec, want, n)))
         problems = []
         if err.tree_pixels > tol["tree_fraction"] * err.pixels:
             problems.append(f"{err.tree_pixels} of {err.pixels} pixels trace another ray tree than the reference kernel")
@@ -93,9 +111,6 @@ class WhittedKind(Kind):
         if not err.psnr >= tol["min_psnr"]:
             problems.append(f"image PSNR {err.psnr:.1f} dB against the reference kernel's, needs {tol['min_psnr']:.0f} dB")
         return not problems, "\n".join(problems)
-
-    def run(self, state):
-        return self.check(state, self.render(state))
 
 
 def describe_node(node: str) -> str:
