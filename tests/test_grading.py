@@ -595,7 +595,7 @@ def test_hidden_tests_draw_their_rays_from_the_secret():
     s1, s2 = spec_for_run(hidden, "a" * 32), spec_for_run(hidden, "b" * 32)
     assert s1.params["seed"] == hidden_seed("a" * 32, hidden.name) != s2.params["seed"] != hidden.params["seed"]
     scene = grading_scene(hidden.scene, hidden.size)
-    rays = [KINDS["trace_rays"].prepare(s, scene)["origins"] for s in (hidden, s1, s2)]
+    rays = [KINDS["trace_rays"].prepare(s, scene).inputs["origins"] for s in (hidden, s1, s2)]
     assert not np.array_equal(rays[0], rays[1]) and not np.array_equal(rays[1], rays[2])
 
 

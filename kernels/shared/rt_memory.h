@@ -141,10 +141,11 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
 #endif
 #if RT_COUNT_WORK
 /* Counted loads: the grader's work budget. Every loader also counts into rt_work, a buffer after
- * the seven scene buffers (64-bit: an exhaustive walk of a large scene passes 2^31): rt_work[0] the tree's reads (nodes, node data, object list), rt_work[1]
- * the triangles' (vertices, per-triangle data). A traversal that walks the whole tree reads many
- * times what the reference reads on the same rays (rtlab.labs.checks). The buffers take opaque types
- * here, so a read that bypasses the loaders does not compile. Global placement only. */
+ * the seven scene buffers with two counters a work-item (no atomics: each item its own): the
+ * tree's reads (nodes, node data, object list) and the triangles' (vertices, per-triangle data).
+ * A traversal that walks the whole tree reads many times what the reference reads on the same
+ * rays (rtlab.labs.checks). The buffers take opaque types here, so a read that bypasses the
+ * loaders does not compile. Global placement only. */
 #if RT_NODE_MEM != RT_MEM_GLOBAL
 #error "RT_COUNT_WORK needs the global placement (RT_NODE_MEM == RT_MEM_GLOBAL)"
 #endif
@@ -163,8 +164,8 @@ struct RtIntList;
     RT_GLOBAL const struct RtNodeList *nodes, RT_GLOBAL const struct RtFloat4List *node_data,   \
         RT_GLOBAL const struct RtIntList *objects, RT_GLOBAL const struct RtFloat4List *tris,    \
         RT_GLOBAL const struct RtFloat4List *tri_data, RT_GLOBAL const struct RtFloat4List *normals, \
-        RT_GLOBAL const struct RtIntList *tri_materials, RT_GLOBAL rt_u64 *rt_work
-#define rt_counted(k, list, type, i) (rt_atomic_inc64(&rt_work[(k)]), ((RT_GLOBAL const type *)(list))[(i)])
+        RT_GLOBAL const struct RtIntList *tri_materials, RT_GLOBAL unsigned int *rt_work
+#define rt_counted(k, list, type, i) (rt_work[2 * rt_item_index() + (k)] += 1u, ((RT_GLOBAL const type *)(list))[(i)])
 #define load_node(nodes, i) rt_counted(0, nodes, int2, i)
 #define load_node_data(node_data, i) rt_counted(0, node_data, float4, i)
 #define load_object(objects, i) rt_counted(0, objects, int, i)

@@ -98,7 +98,11 @@
 #define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
 #define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
 typedef unsigned long long rt_u64;
-#define rt_atomic_inc64(p) atomicAdd((p), 1ull)               /* rt_u64 in global memory */
+/* this thread's index in the whole launch (x fastest, then y) */
+RT_FN unsigned int rt_item_index(void)
+{
+    return (blockIdx.x * blockDim.x + threadIdx.x) + gridDim.x * blockDim.x * (blockIdx.y * blockDim.y + threadIdx.y);
+}
 RT_FN float3 f3(float x, float y, float z) { return make_float3(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z, w); }
 RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
@@ -130,10 +134,10 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_shared_atomic_add(p, v) atomic_add((p), (v))
 #define rt_atomic_inc(p) atomic_inc(p)
 typedef ulong rt_u64;
-#if defined(RT_COUNT_WORK) && RT_COUNT_WORK
-#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
-#endif
-#define rt_atomic_inc64(p) atom_inc(p)                         /* rt_u64 in global memory (cl_khr_int64_base_atomics) */
+RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
+{
+    return (unsigned int)(get_global_id(0) + get_global_size(0) * get_global_id(1));
+}
 RT_FN float3 f3(float x, float y, float z) { return (float3)(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return (float4)(x, y, z, w); }
 /* OpenCL 1.2 has no float atomics: compare-and-swap on the bits. */

@@ -41,7 +41,6 @@ class AccelArrays:
 SCENE_ELEMENTS = ((np.int32, 2), (np.float32, 4), (np.int32, 1), (np.float32, 4), (np.float32, 4), (np.float32, 4),
                   (np.int32, 1))
 NO_NODES = np.zeros((1, 2), np.int32)       # the BVH traversals read no kd nodes
-WORK_COUNTERS = 2                           # rt_work of a counting build (rt_memory.h: RT_COUNT_WORK)
 
 
 def kd_accel(scene: Scene, tree: KdTree) -> AccelArrays:
@@ -228,7 +227,7 @@ class DeviceScene:
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
     tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray
     max_material_id: int = 0                        # checked against the scene's materials each use
-    work: object = None                             # the counters of a counting build (Variant.count_work)
+    work: tuple | None = None                       # (buffer, work-items) of a counting build's counters
     fingerprint: bytes = b""                        # scene_fingerprint at upload
 
     @classmethod
@@ -280,17 +279,27 @@ class DeviceScene:
         return [arg.buffer for arg in args]
 
     def work_counters(self):
-        """The two counters a counting build adds to (tree reads, triangle reads), made on first use."""
+        """Two counters a work-item that a counting build adds to (tree reads, triangle reads): room
+        for :meth:`reserve_work_counters`'s items, zeroed."""
         if self.work is None:
-            self.work = self.backend.empty(8 * WORK_COUNTERS)
-            self.backend.fill(self.work, np.zeros(WORK_COUNTERS, np.uint64))
-        return self.work
+            self.reserve_work_counters(1 << 16)
+        return self.work[0]
+
+    def reserve_work_counters(self, items: int) -> None:
+        """Room for the counters of a launch of up to ``items`` work-items (rounded up generously:
+        launches round their grids up to whole blocks), zeroed."""
+        items = int(items) + 4096
+        if self.work is None or self.work[1] < items:
+            self.work = (self.backend.empty(8 * items), items)
+        self.backend.fill(self.work[0], np.zeros(2 * self.work[1], np.uint32))
 
     def take_work_counts(self) -> np.ndarray:
-        """(tree reads, triangle reads) counted since the last call, as int64; the counters restart at 0."""
-        counts = self.backend.to_host(self.work_counters(), np.uint64, WORK_COUNTERS).astype(np.int64)
-        self.backend.fill(self.work, np.zeros(WORK_COUNTERS, np.uint64))
-        return counts
+        """(tree reads, triangle reads) counted since the last call, summed over work-items, as int64;
+        the counters restart at 0."""
+        buf, items = self.work_counters(), self.work[1]
+        slots = self.backend.to_host(buf, np.uint32, 2 * items).astype(np.int64).reshape(items, 2)
+        self.backend.fill(buf, np.zeros(2 * items, np.uint32))
+        return slots.sum(axis=0)
 
     def _texture(self, array: DeviceArray, dtype, channels):
         if array.texture is None:

@@ -127,7 +127,7 @@ def _array_specs(meta) -> list[tuple[str, np.dtype, tuple, int]]:
             raise ChannelError(f"array {name}: a shape must be up to 4 non-negative integers")
         n = int(np.prod(shape, dtype=np.int64)) * ARRAY_DTYPES[dtype].itemsize
         if n > MAX_PAYLOAD:
-            raise ChannelError(f"array {name}: {n:,} bytes")
+            raise ChannelError(f"array {name}: {n:,} bytes of arrays (at most {MAX_PAYLOAD:,})")
         names.add(name)
         out.append((name, ARRAY_DTYPES[dtype], tuple(shape), n))
     return out

@@ -12,7 +12,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .sandbox import SIGSYS_TEXT
@@ -158,6 +158,7 @@ class TestProcess:
         self.t0 = time.monotonic()
         self.ready = False
         self.paused = False
+        self.work = None                # the work budget's counts, once the process sent them
         r, w = os.pipe()
         self.log = open(self.dir / "log.txt", "wb")
         kwargs = {}
@@ -210,15 +211,17 @@ class TestProcess:
         rc = self.proc.returncode
         tail = _log_tail(self.dir / "log.txt")
         if any(sign in tail for sign in MEMORY_SIGNS):
-            return ChildResult("memory", f"ran out of memory while {phase}: a test process may use "
-                                         f"{self.limits.memory_mb} MB (grading.toml memory_limit_mb; the reference needs "
-                                         f"a fraction of that). A macro that expands without end, or a huge array?",
-                               data=data, seconds=seconds, programs=self.programs)
+            return ChildResult("memory", self._memory_text(phase), data=data, seconds=seconds, programs=self.programs)
         if rc is not None and rc < 0:
             return ChildResult("crashed", f"crashed while {phase}: {_signal_text(-rc)}", data=data, seconds=seconds,
                                programs=self.programs)
         return ChildResult("error", f"the test process ended while {phase} (exit status {rc}):\n{tail}", data=data,
                            seconds=seconds, programs=self.programs)
+
+    def _memory_text(self, phase: str) -> str:
+        return (f"ran out of memory while {phase}: a test process may use {self.limits.memory_mb} MB (grading.toml "
+                f"memory_limit_mb; the reference needs a fraction of that). A macro that expands without end, or a "
+                f"huge array?")
 
     def _data(self) -> dict:
         return {"peak_memory_mb": round(self.peak_kb / 1024, 1)} if self.peak_kb else {}
@@ -232,7 +235,8 @@ class TestProcess:
 
     def wait_for(self, events: tuple[str, ...], run_limit: float | None) -> tuple[dict, dict]:
         """The next frame whose event is one of ``events`` (``error`` frames raise), watching the
-        limits: the setup limit until the process is ready, then ``run_limit`` from now."""
+        limits: the setup limit until the process is ready, then ``run_limit`` from now. ``work``
+        frames on the way are kept in :attr:`work`."""
         step_start = time.monotonic()
         run_start = time.monotonic() if self.ready else None
         while True:
@@ -277,10 +281,16 @@ class TestProcess:
                     run_start = time.monotonic()
             if event == "error":
                 from .channel import clean_text
-                status = header.get("status") if header.get("status") in ("compile_error", "error") else "error"
+                status = header.get("status") if header.get("status") in ("compile_error", "error", "memory") \
+                    else "error"
                 self.kill()
+                if status == "memory":
+                    raise ProcessFailed(replace(self._failure("compiling a kernel", None), status="memory",
+                                                output=self._memory_text("compiling a kernel")))
                 raise ProcessFailed(ChildResult(status, clean_text(header.get("output"), 20000), data=self._data(),
                                                 seconds=time.monotonic() - self.t0, programs=self.programs))
+            if event == "work" and "work" in arrays:
+                self.work = arrays["work"]
             if event in events:
                 return header, arrays
 
@@ -338,6 +348,18 @@ def _clean_programs(programs) -> list:
     return out
 
 
+def _merge_launched(programs: list, launched) -> None:
+    """The kernels a process says it launched, into the programs it compiled (for the note on
+    unfinished functions only: said after its sandbox closed, so nothing else trusts it)."""
+    import re
+    if not isinstance(launched, dict):
+        return
+    for p in programs:
+        names = launched.get(p["path"])
+        if isinstance(names, list):
+            p["kernels"] = [n for n in names[:32] if isinstance(n, str) and re.fullmatch(r"[A-Za-z_]\w{0,63}", n)]
+
+
 def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bool = True) -> ChildResult:
     """Run a one-shot test process to its result (or its failure)."""
     proc = TestProcess(test_dir, env, limits, user, sandboxed=sandboxed)
@@ -346,9 +368,11 @@ def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bo
         from .channel import clean_text
         info = header.get("info") if isinstance(header.get("info"), dict) else {}
         info = {str(k)[:64]: (clean_text(v, 500) if isinstance(v, str) else v) for k, v in list(info.items())[:64]}
+        _merge_launched(proc.programs, header.get("launched"))
+        info["work"] = proc.work
         return ChildResult("ok", arrays=arrays, info=info, data=proc._data(), seconds=time.monotonic() - proc.t0,
                            programs=proc.programs)
     except ProcessFailed as e:
-        return e.result
+        return replace(e.result, info={**e.result.info, "work": proc.work})
     finally:
         proc.close()

@@ -56,28 +56,45 @@ class Recorder:
         def compile(path, defines, options=()):
             from rtlab.errors import KernelBuildError
             key = {"path": str(path), "defines": {k: str(v) for k, v in dict(defines).items()}}
-            if key not in [{"path": p["path"], "defines": p["defines"]} for p in self.programs]:
+            entry = next((p for p in self.programs if p["path"] == key["path"] and p["defines"] == key["defines"]),
+                         None)
+            if entry is None:
                 if self.closed:
                     raise KernelBuildError(f"{Path(path).name} was compiled after the sandbox closed: a grading test "
                                            f"compiles every kernel in its setup (a grader bug, not your code)")
                 self.tick()
-                self.check_includes(backend, Path(path), defines)
-                self.programs.append({**key, "kernels": []})
+                entry = {**key, "kernels": []}
+                self.programs.append(entry)
                 _send({"event": "programs", "programs": self.programs})
-            return compile_(path, defines, options)
+                self.check_includes(backend, Path(path), defines)
+            program = compile_(path, defines, options)
+            if not getattr(program, "_recorded", False):
+                launch = program.launch
+
+                def recorded_launch(name, *args, **kwargs):
+                    if name not in entry["kernels"]:
+                        entry["kernels"].append(name)
+                    return launch(name, *args, **kwargs)
+
+                program.launch = recorded_launch
+                program._recorded = True
+            return program
 
         backend.compile = compile
 
     def check_includes(self, backend, path: Path, defines) -> None:
         if self.allowed is None:
             return
+        from rtlab.backends.base import format_build_error
         from rtlab.errors import KernelBuildError
-        from rtlab.labs.deps import outside_includes
+        from rtlab.labs.deps import PreprocessorError, outside_includes
         from rtlab.labs.submission import REFUSED_MARK
         from rtlab.paths import include_dirs
         try:
             outside = outside_includes(path, [*include_dirs(path), path.parent], dict(defines), backend.language,
                                        self.allowed)
+        except PreprocessorError as e:
+            raise KernelBuildError(format_build_error(path, dict(defines), str(e))) from None
         except RuntimeError as e:
             raise KernelBuildError(f"{REFUSED_MARK}{path.name}: {e}") from None
         if outside:
@@ -118,12 +135,13 @@ def _setup(job: dict, inputs: dict, backend):
     return spec, kind, kind.setup(spec, inputs, backend, bool(job.get("count_work")))
 
 
-def _produce(kind, state, request: dict, backend) -> None:
+def _produce(kind, state, request: dict, backend, launched=None) -> None:
     t0 = time.perf_counter()
-    out = kind.produce(state, request)
+    out = kind.produce(state, {**request, "emit": lambda arrays: _send({"event": "work"}, arrays)})
     info = {**out.info, "device": backend.device_name, "language": backend.language,
             "produce_s": time.perf_counter() - t0}
-    _send({"event": "result", "status": "ok", "info": info}, out.arrays)
+    launched = {p["path"]: p["kernels"] for p in launched or []}
+    _send({"event": "result", "status": "ok", "info": info, "launched": launched}, out.arrays)
 
 
 def _commands():
@@ -152,6 +170,9 @@ def test_main(test_dir: Path) -> int:
     except KernelBuildError as e:
         _error("compile_error", str(e))
         return 0
+    except MemoryError as e:
+        _error("memory", str(e))
+        return 0
     if job.get("sandbox", True):
         if hasattr(backend, "prebuild_for_sandbox"):
             backend.prebuild_for_sandbox()
@@ -163,9 +184,9 @@ def test_main(test_dir: Path) -> int:
             for cmd in _commands():
                 if cmd.get("op") != "produce":
                     break
-                _produce(kind, state, cmd.get("request") or {}, backend)
+                _produce(kind, state, cmd.get("request") or {}, backend, recorder.programs)
         else:
-            _produce(kind, state, {}, backend)
+            _produce(kind, state, {}, backend, recorder.programs)
     except KernelBuildError as e:
         _error("compile_error", str(e))
     return 0

@@ -101,7 +101,7 @@ def work_budget_problem(counts, reference, budget: float) -> str | None:
         got, want = int(got), int(want)
         if got > budget * max(want, 1):
             ratio = got / max(want, 1)
-            return (f"reads {ratio:.0f}x the {what} the reference kernel reads on the same rays ({got:,} against "
+            return (f"reads {ratio:.0f}x as much of {what} as the reference kernel on the same rays ({got:,} against "
                     f"{want:,}; allowed {budget:g}x): a traversal visits the nodes its ray crosses, in order, "
                     f"and stops at the first hit it can no longer beat; walking every node is brute force")
     return None
