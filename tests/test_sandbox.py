@@ -379,3 +379,20 @@ def test_lexer_reads_as_clang_does():
     problems = check_source(text, rel, rules)
     assert [(r.line, r.reason.split(" (")[0][:24]) for r in problems] == \
         [(2, "a byte outside ASCII out"), (3, "the attribute constructo")], problems
+
+
+def test_student_wheel_holds_no_solution(tmp_path):
+    """`rtlab lab release --wheel`: the wheel a notebook server installs ships the release's stubbed
+    kernels only; the same check finds every solution in the repository's kernels (what `pip install .`
+    of the repository would ship)."""
+    import zipfile
+    from rtlab.labs.release import build_wheel, wheel_solutions, write_release
+    release = write_release(tmp_path / "release")
+    wheel = build_wheel(release)
+    assert wheel_solutions(wheel) == [] and any("_data/kernels/shared/rt_kdtree.h" in n
+                                                 for n in zipfile.ZipFile(wheel).namelist())
+    repo = tmp_path / "repo.whl"
+    with zipfile.ZipFile(repo, "w") as z:
+        for f in sorted((PROJECT_DIR / "kernels").rglob("*.h")):
+            z.write(f, f"rtlab/_data/kernels/{f.relative_to(PROJECT_DIR / 'kernels')}")
+    assert any(s.endswith(": traverse_kd_stack") for s in wheel_solutions(repo))

@@ -165,7 +165,10 @@ struct RtIntList;
         RT_GLOBAL const struct RtIntList *objects, RT_GLOBAL const struct RtFloat4List *tris,    \
         RT_GLOBAL const struct RtFloat4List *tri_data, RT_GLOBAL const struct RtFloat4List *normals, \
         RT_GLOBAL const struct RtIntList *tri_materials, RT_GLOBAL unsigned int *rt_work
-#define rt_counted(k, list, type, i) (rt_work[2 * rt_item_index() + (k)] += 1u, ((RT_GLOBAL const type *)(list))[(i)])
+/* rt_work[0]: the slots it has room for; a work-item past them counts in the last (totals stay right) */
+#define rt_counted(k, list, type, i)                                                            \
+    (rt_work[2 + 2 * rt_imin((int)rt_item_index(), (int)rt_work[0] - 1) + (k)] += 1u,            \
+     ((RT_GLOBAL const type *)(list))[(i)])
 #define load_node(nodes, i) rt_counted(0, nodes, int2, i)
 #define load_node_data(node_data, i) rt_counted(0, node_data, float4, i)
 #define load_object(objects, i) rt_counted(0, objects, int, i)

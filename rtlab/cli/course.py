@@ -51,14 +51,20 @@ def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary
 
 @lab_app.command("release")
 def lab_release(out: Path = typer.Argument(..., help="folder to write (new or empty)"),
-                force: bool = typer.Option(False, "--force", help="replace the folder if it exists")):
-    """Write the student release: the project with every solution stubbed and the visible tests only."""
-    from ..labs.release import write_release
+                force: bool = typer.Option(False, "--force", help="replace the folder if it exists"),
+                wheel: bool = typer.Option(False, "--wheel", help="also build the student wheel (OUT/dist), checked "
+                                                                 "to hold no solution: what a notebook server installs")):
+    """Write the student release: the project with every solution stubbed and the visible tests only.
+    (A wheel or `pip install .` of the course's repository ships every solution: give students this.)"""
+    from ..labs.release import build_wheel, write_release
     from ..labs.trees import tree_stubs
     path = write_release(out, force=force)
     n = sum(len(v) for v in tree_stubs(path / "kernels").values())
     console.print(f"wrote {path}/ (pyproject.toml, README.md, rtlab/, kernels/ with {n} functions stubbed, "
                   f"labs/ with visible tests, notebooks/): students `pip install -e {path}`")
+    if wheel:
+        whl = build_wheel(path)
+        console.print(f"wrote {whl} (no solution in it): `pip install {whl.name}` on a notebook server")
 
 
 def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g. 00_primary"),
@@ -107,6 +113,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
 
     try:
         from ..labs.fixtures import read_secret
+        cap_grader_memory(step)
         secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
                        tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,
@@ -135,6 +142,17 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
         Console(stderr=True).print(f"rtlab: not full marks ({report.score:g} / {report.max_score:g}): "
                                    + escape(", ".join(short)))
         raise typer.Exit(1)
+
+
+def cap_grader_memory(step: str) -> None:
+    """The grading process's own memory cap (grading.toml grader_memory_mb, RLIMIT_DATA): what a
+    submission makes the grader read (its files, its outputs) cannot take the machine."""
+    import resource
+    from ..labs.config import load_config
+    limit = load_config(step).grader_memory_mb * 2 ** 20
+    soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
+    if soft == resource.RLIM_INFINITY or soft > limit:
+        resource.setrlimit(resource.RLIMIT_DATA, (limit, hard))
 
 
 def register(app: typer.Typer) -> None:

@@ -290,15 +290,21 @@ class DeviceScene:
         launches round their grids up to whole blocks), zeroed."""
         items = int(items) + 4096
         if self.work is None or self.work[1] < items:
-            self.work = (self.backend.empty(8 * items), items)
-        self.backend.fill(self.work[0], np.zeros(2 * self.work[1], np.uint32))
+            self.work = (self.backend.empty(8 * items + 8), items)
+        self._zero_work()
+
+    def _zero_work(self) -> None:
+        buf, items = self.work
+        counters = np.zeros(2 * items + 2, np.uint32)
+        counters[0] = items                     # rt_memory.h's rt_counted reads its room here
+        self.backend.fill(buf, counters)
 
     def take_work_counts(self) -> np.ndarray:
         """(tree reads, triangle reads) counted since the last call, summed over work-items, as int64;
         the counters restart at 0."""
         buf, items = self.work_counters(), self.work[1]
-        slots = self.backend.to_host(buf, np.uint32, 2 * items).astype(np.int64).reshape(items, 2)
-        self.backend.fill(buf, np.zeros(2 * items, np.uint32))
+        slots = self.backend.to_host(buf, np.uint32, 2 * items + 2)[2:].astype(np.int64).reshape(items, 2)
+        self._zero_work()
         return slots.sum(axis=0)
 
     def _texture(self, array: DeviceArray, dtype, channels):

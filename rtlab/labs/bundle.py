@@ -38,27 +38,35 @@ VENV="${{RTLAB_VENV:-{venv}}}"
 SOURCE="$ROOT/source"
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -qq
-# PoCL: OpenCL on the CPU, where the grader runs every test
-apt-get install -y -qq --no-install-recommends pocl-opencl-icd ocl-icd-libopencl1 python3 python3-venv python3-pip
-# rtlab needs Python >= 3.11 (Ubuntu 22.04's python3 is 3.10)
+# PoCL: OpenCL on the CPU, where the grader runs every test (Debian's and Ubuntu's bring clang, whose
+# preprocessor lists what a submission includes); libseccomp2: the test processes' system-call filter
+apt-get install -y -qq --no-install-recommends pocl-opencl-icd ocl-icd-libopencl1 libseccomp2 python3 python3-venv python3-pip
+command -v clang >/dev/null || ls /usr/bin/clang-[0-9]* >/dev/null 2>&1 || apt-get install -y -qq --no-install-recommends clang
+# rtlab needs Python >= 3.11 (Ubuntu 22.04's python3 is 3.10). The system's, which the unprivileged
+# user that runs submissions can read (a Python under /root could not be)
 PY=""
-for p in python3.13 python3.12 python3.11 python3; do
-  if command -v "$p" >/dev/null && "$p" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then PY=$(command -v "$p"); break; fi
+for p in /usr/bin/python3.13 /usr/bin/python3.12 /usr/bin/python3.11 /usr/bin/python3; do
+  if [ -x "$p" ] && "$p" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then PY="$p"; break; fi
 done
 if [ -z "$PY" ]; then
   apt-get install -y -qq --no-install-recommends python3.11 python3.11-venv
-  PY=$(command -v python3.11)
+  PY=/usr/bin/python3.11
 fi
 "$PY" -m venv "$VENV"
 "$VENV/bin/pip" install -q --upgrade pip
 "$VENV/bin/pip" install -q -e "$SOURCE"
 # No OpenCL platform from apt (an old image)? PoCL from PyPI instead
 "$VENV/bin/python" -c 'import pyopencl as cl; assert cl.get_platforms()' 2>/dev/null || \\
-  {{ apt-get install -y -qq --no-install-recommends build-essential; "$VENV/bin/pip" install -q pocl-binary-distribution; }}
+  {{ apt-get install -y -qq --no-install-recommends build-essential clang; "$VENV/bin/pip" install -q pocl-binary-distribution; }}
+# The sandbox: submissions run as this user; what they must not read is root's alone
+id rtlab-sandbox >/dev/null 2>&1 || useradd --system --no-create-home --shell /usr/sbin/nologin rtlab-sandbox
+chmod 755 "$ROOT" "$SOURCE"
+chmod -R go-rwx "$SOURCE/kernels" "$SOURCE/labs" "$SOURCE/scenes" "$SOURCE/grading-secret"
 # Self-check: the reference must score full marks with this bundle's secret (it also builds the
 # kd-trees and fills the caches). Anything less fails the image build: do not grade with it.
 export RTLAB_SCENES="$SOURCE/scenes" RTLAB_CACHE="$ROOT/cache"
 mkdir -p "$ROOT/cache"
+chmod 700 "$ROOT/cache"
 "$VENV/bin/rtlab" info
 # One retry: the reference's speed against itself can pass 1.25x on a builder loaded by other work.
 self_check() {{
@@ -78,6 +86,7 @@ VENV="${{RTLAB_VENV:-{venv}}}"
 SOURCE="$ROOT/source"
 export RTLAB_SCENES="$SOURCE/scenes" RTLAB_CACHE="$ROOT/cache" RTLAB_BACKEND=opencl
 mkdir -p "$ROOT/results"
+chmod 700 "$ROOT/results"
 cd "$SOURCE"
 "$VENV/bin/rtlab" grade {step} "$ROOT/submission" --backend opencl --format gradescope \\
     --secret-file "$SOURCE/grading-secret" --out "$ROOT/results/results.json"
@@ -88,8 +97,8 @@ if [ ! -s "$ROOT/results/results.json" ]; then
 fi
 """
 
-# Measured on the course's lab machine (2 CPU cores shared with other work, load ~4, PoCL 3.1,
-# caches warm as after setup.sh): `rtlab grade STEP .` of the reference, seconds for one submission.
+# Measured on the course's lab machine (2 CPU cores, PoCL 3.1, caches warm as after setup.sh, the
+# sandbox on): `rtlab grade STEP .` of the reference, seconds for one submission (README has the table).
 MEASURED_SECONDS = {"00_primary": 19, "01_memory": 21, "02_intersect": 22, "03_traversal": 25,
                     "04_shadows": 14, "05_kernel_tree": 22}
 
@@ -100,16 +109,27 @@ Written by `rtlab grade --bundle {step}` from the course's repository (the refer
 
 What it needs (set these in the assignment's autograder settings):
 - **Memory:** each test runs in its own process capped at {memory} MB (grading.toml
-  `memory_limit_mb`; the reference's test processes peak at 400-560 MB), and up to {jobs_hint} of them run at once beside
-  the grading process (about 1 GB: scenes, fixtures). With one CPU, 3 GB is enough; with N CPUs,
-  N x {memory} MB + 1 GB. The grader starts no more tests at once than the memory it sees allows.
-- **Time:** one grading takes about {seconds} s on 2 CPU cores (more on a loaded machine; the
-  first submission after the image build pays no compile or kd-tree build: setup.sh warmed the
+  `memory_limit_mb`; the reference's test processes peak at 300-560 MB), and up to {jobs_hint} of them run at once beside
+  the grading process and its reference worker (about 1.5 GB together: scenes, fixtures, the reference kernels). With one
+  CPU, 3.5 GB is enough; with N CPUs, N x {memory} MB + 1.5 GB. The grader starts no more tests at once than the memory
+  it sees allows.
+- **Time:** one grading takes about {seconds} s on 2 CPU cores with the sandbox on (more on a loaded machine; the
+  first submission after the image build pays no compile or kd-tree build for the reference: setup.sh warmed the
   caches). Every test has its own limits (a setup limit of {setup:g} s per kernel compile, a run
   limit per test) and the whole run stops at {deadline:g} s (grading.toml `deadline`; Gradescope's
   own default limit is 600 s): what is not done by then scores 0 with a message.
 - `setup.sh` grades the reference solution with this bundle's secret and fails the image build if
   it scores less than full marks.
+
+**The sandbox.** A kernel on PoCL is native code in the process that runs it, so every test runs in a
+process of its own that holds nothing worth taking: the submission's compile tree, the test's inputs
+(scene, rays), a scratch folder; never the expected answers (the grader keeps them and checks what the
+process hands back), the secret or the reference kernels. setup.sh creates the user `rtlab-sandbox`, which
+runs every submission, and leaves `source/kernels`, `source/labs`, `source/scenes` and `grading-secret`
+readable by root alone. Each test process is also confined by Landlock (it may write only its scratch
+folder) and, from its first launch of submitted code, by a seccomp filter (no programs, processes,
+sockets or signals to others); the reference kernel a speed test times against runs in a process of
+the grader's that never loads submitted code.
 
 The tests hidden until the due date draw their rays from `grading-secret`, drawn for this bundle:
 make a new bundle each term. Students get `rtlab lab release` (no solutions, visible tests only).

@@ -27,6 +27,7 @@ DEFAULT_TIME_LIMIT = 20.0     # seconds for a test's own work: kernel launches a
 DEFAULT_SETUP_LIMIT = 30.0
 DEFAULT_MEMORY_LIMIT_MB = 2048  # per test process (RLIMIT_DATA); the reference peaks near 320 MB
 DEFAULT_DEADLINE = 480.0      # seconds for the whole grading run; tests not finished by then score 0
+DEFAULT_GRADER_MEMORY_MB = 4096   # the grading process itself (RLIMIT_DATA, set by `rtlab grade`)
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class LabConfig:
     setup_limit: float = DEFAULT_SETUP_LIMIT
     memory_limit_mb: int = DEFAULT_MEMORY_LIMIT_MB
     deadline: float = DEFAULT_DEADLINE
+    grader_memory_mb: int = DEFAULT_GRADER_MEMORY_MB
     path: Path | None = None
 
     @property
@@ -177,7 +179,8 @@ def load_config(step_or_path: str | Path) -> LabConfig:
         raise LabError(f"{where}: no [[tests]]")
     limits = {}
     for key, default, kind in (("setup_limit", DEFAULT_SETUP_LIMIT, float), ("deadline", DEFAULT_DEADLINE, float),
-                               ("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB, int)):
+                               ("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB, int),
+                               ("grader_memory_mb", DEFAULT_GRADER_MEMORY_MB, int)):
         value = defaults.get(key, default)
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
             raise LabError(f"{where}: [defaults] {key} must be a positive number, got {value!r}")

@@ -205,6 +205,40 @@ class ReferenceWorker:
         self.proc.close()
 
 
+class SharedBuilds:
+    """The kernel binaries of a grading run's test processes, compiled once a run: the grader copies
+    what a process has just built (its PoCL cache) at the instant between its build and its first
+    launch of submitted code (the process waits for the grader's go), so nothing the submission's
+    code did can be in them, and seeds each new test process's cache with copies. Kept where the
+    test processes cannot write (root's folder, or outside their Landlock domain); off where
+    neither holds."""
+
+    def __init__(self, root: Path, enabled: bool):
+        self.root, self.enabled = root, enabled
+        self.lock = threading.Lock()
+        if enabled:
+            root.mkdir(mode=0o700, exist_ok=True)
+
+    def take(self, cache: Path) -> None:
+        if not self.enabled or not cache.is_dir():
+            return
+        with self.lock:
+            for program in cache.glob("*/*"):
+                target = self.root / program.relative_to(cache)
+                if program.is_dir() and not program.is_symlink() and not target.exists():
+                    shutil.copytree(program, target, symlinks=False,
+                                    ignore=lambda d, names: [n for n in names if (Path(d) / n).is_symlink()])
+
+    def seed(self, cache: Path, user) -> None:
+        if not self.enabled or not any(self.root.iterdir()):
+            return
+        with self.lock:
+            shutil.copytree(self.root, cache, dirs_exist_ok=True)
+        if user is not None:
+            for p in [cache, *cache.rglob("*")]:
+                os.chown(p, user.uid, user.gid, follow_symlinks=False)
+
+
 # --------------------------------------------------------------------------------------------------
 # a grading run
 # --------------------------------------------------------------------------------------------------
@@ -221,15 +255,21 @@ class GradingRun:
         self.t_start = time.monotonic()
         self.deadline = deadline
         self.deadline_at = self.t_start + deadline
+        self.work = Path(tempfile.mkdtemp(prefix="rtlab-grade-"))
+        os.chmod(self.work, 0o711)             # others may pass through to what is theirs, never list it
+        from ..kernel_constants import kernel_constants
+        self.constants = self.work / "constants.json"
+        self.constants.write_text(json.dumps(kernel_constants()))
+        os.chmod(self.constants, 0o644)
         self.sandboxed = sandbox.sandbox_enabled()
-        self.user = sandbox.sandbox_user() if self.sandboxed else None
+        self.user = sandbox.sandbox_user({"RTLAB_KERNEL_CONSTANTS": str(self.constants)}) if self.sandboxed else None
         if self.sandboxed:
             why = sandbox.problem(self.user)
             if why:
+                shutil.rmtree(self.work, ignore_errors=True)
                 raise LabError(f"the grader cannot sandbox submitted code here: {why}")
             sandbox.make_undumpable()
-        self.work = Path(tempfile.mkdtemp(prefix="rtlab-grade-"))
-        os.chmod(self.work, 0o711 if self.user else 0o700)    # the sandbox user reaches its own folders only
+        self.builds = SharedBuilds(self.work / "pocl-shared", enabled=self.user is not None or sandbox.landlock_abi() > 0)
         self.tree: StudentTree | None = None
         self.results: dict[str, TestResult] = {}
         self.notes: list[str] = []
@@ -238,10 +278,6 @@ class GradingRun:
         self.reference_lock = threading.Lock()
         from .trees import has_reference
         self.has_reference = has_reference(config.step)
-        self.constants = self.work / "constants.json"
-        from ..kernel_constants import kernel_constants
-        self.constants.write_text(json.dumps(kernel_constants()))
-        os.chmod(self.constants, 0o644)
 
     # -- report ---------------------------------------------------------------------------------
     def report(self) -> GradeReport:
@@ -330,8 +366,9 @@ class GradingRun:
         from . import sandbox
         d = self.work / "tests" / (spec.name + suffix)
         (self.work / "tests").mkdir(exist_ok=True)
-        os.chmod(self.work / "tests", 0o711 if self.user else 0o700)
+        os.chmod(self.work / "tests", 0o711)
         sandbox.give_to(d, self.user)
+        self.builds.seed(d / "pocl", self.user)
         for name, data in (("job.json", json.dumps(job, default=str).encode()), ("inputs.pkl", input_bytes(prepared))):
             (d / name).write_bytes(data)
             if self.user:
@@ -370,7 +407,8 @@ class GradingRun:
         count = kind.counts_work(spec) and self.has_reference
         job = self.job(spec, count_work=count)
         d = self.test_dir(spec, prepared, job)
-        r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed)
+        r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed,
+                     on_ready=lambda: self.builds.take(d / "pocl"))
         if r.status == "ok":
             r = self.check(spec, kind, prepared, r)
         if count and r.status not in ("compile_error", "error", "skipped", "deadline"):
@@ -467,6 +505,7 @@ class GradingRun:
 
         try:
             proc.wait_for(("ready",), None)
+            self.builds.take(d / "pocl")
             worker.produce(spec.name, ref_job, input_bytes(prepared), {}, 120.0)      # compile and warm up
             outcome = time_against_reference(spec, prepared.inputs, self.expected(prepared),
                                              Side(submission_produce, proc.pause, proc.resume), Side(reference_produce))

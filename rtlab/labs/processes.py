@@ -18,7 +18,7 @@ from pathlib import Path
 from .sandbox import SIGSYS_TEXT
 
 POLL_S = 0.05
-GRADER_OVERHEAD_MB = 1024       # the grading process itself (scenes, fixtures, numba) beside its tests
+GRADER_OVERHEAD_MB = 1536       # the grading process (scenes, fixtures, numba) and its reference worker
 MAX_OUTPUT = 6000     # characters of a test's message (a compiler can print thousands of errors; Gradescope shows 8 KB)
 MEMORY_SIGNS = ("MemoryError", "bad_alloc", "out of memory", "Cannot allocate memory", "Allocation failed")
 
@@ -360,10 +360,16 @@ def _merge_launched(programs: list, launched) -> None:
             p["kernels"] = [n for n in names[:32] if isinstance(n, str) and re.fullmatch(r"[A-Za-z_]\w{0,63}", n)]
 
 
-def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bool = True) -> ChildResult:
-    """Run a one-shot test process to its result (or its failure)."""
+def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bool = True,
+             on_ready=None) -> ChildResult:
+    """Run a one-shot test process to its result (or its failure). ``on_ready()`` runs when its
+    kernels are built and before it runs any submitted code (it waits for the grader's go)."""
     proc = TestProcess(test_dir, env, limits, user, sandboxed=sandboxed)
     try:
+        proc.wait_for(("ready",), None)
+        if on_ready is not None:
+            on_ready()
+        proc.request({"op": "go"})
         header, arrays = proc.wait_for(("result",), limits.run)
         from .channel import clean_text
         info = header.get("info") if isinstance(header.get("info"), dict) else {}

@@ -11,7 +11,10 @@ as it does from the course's repository:
   the due date (and none of its parameters) and no speed test (those time against the reference,
   which only the course's grader has).
 
-Instructors keep the repository (the reference) and make the Gradescope bundle from it.
+Instructors keep the repository (the reference) and make the Gradescope bundle from it. Note that
+``pip install .`` (or a wheel) of the course's repository ships every solution in
+``rtlab/_data/kernels``: a notebook server for students installs the release or its wheel
+(``rtlab lab release OUT --wheel``), never the repository.
 """
 from __future__ import annotations
 
@@ -126,4 +129,39 @@ def write_release(out, force: bool = False) -> Path:
         d.mkdir(parents=True)
         shutil.copy2(PROJECT_DIR / "labs" / step / "README.md", d / "README.md")
         (d / "grading.toml").write_text(release_grading_toml(step), encoding="utf-8")
+    return out
+
+
+def build_wheel(release: Path) -> Path:
+    """The student wheel, built from a release folder (``pip wheel``; the wheel ships the release's
+    stubbed kernels as rtlab/_data/kernels), checked to hold no solution. Returns its path."""
+    import subprocess
+    import sys
+    release = Path(release)
+    dist = release / "dist"
+    dist.mkdir(exist_ok=True)
+    cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(release)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise LabError(f"building the student wheel failed: {(r.stderr or r.stdout).strip()[-1500:]}")
+    wheels = sorted(dist.glob("rtlab-*.whl"), key=lambda w: w.stat().st_mtime)
+    if not wheels:
+        raise LabError(f"pip wheel wrote no rtlab wheel into {dist}")
+    leaked = wheel_solutions(wheels[-1])
+    if leaked:
+        raise LabError(f"the student wheel holds solutions ({', '.join(leaked[:5])}): not released")
+    return wheels[-1]
+
+
+def wheel_solutions(wheel: Path) -> list[str]:
+    """'file: function' for every solution region of a wheel's kernels that is not a stub."""
+    import zipfile
+    from .regions import find_regions, stubbed_functions
+    out = []
+    with zipfile.ZipFile(wheel) as z:
+        for name in z.namelist():
+            if "/_data/kernels/" in name and name.endswith((".h", ".cl", ".cu")):
+                text = z.read(name).decode("latin-1")
+                stubs = set(stubbed_functions(text))
+                out += [f"{name}: {r.function}" for r in find_regions(text, name) if r.function not in stubs]
     return out

@@ -48,12 +48,31 @@ def full_dict(report: GradeReport) -> dict:
     return d
 
 
+MAX_RESULTS_BYTES = 1 << 20      # results.json stays under 1 MB whatever a submission makes the grader say
+
+
+def bounded_json(data: dict, limit: int = MAX_RESULTS_BYTES) -> str:
+    """``data`` as JSON of at most ``limit`` bytes: outputs and notes cut shorter until it fits."""
+    text = json.dumps(data, indent=2, default=_jsonable) + "\n"
+    for keep in (4000, 1000, 200):
+        if len(text.encode()) <= limit:
+            return text
+        for t in data.get("tests", []):
+            if len(t.get("output", "")) > keep:
+                t["output"] = t["output"][:keep] + " ... (cut)"
+            t.pop("data", None)
+        data["output"] = data.get("output", "")[:keep * 4]
+        data.pop("notes", None)
+        text = json.dumps(data, indent=2, default=_jsonable) + "\n"
+    return text
+
+
 def write_report(report: GradeReport, path, fmt: str = "gradescope") -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     data = gradescope_dict(report) if fmt == "gradescope" else full_dict(report)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
+    tmp.write_text(bounded_json(data))
     tmp.replace(path)
     return path
 

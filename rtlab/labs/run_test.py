@@ -12,7 +12,9 @@ never an expected answer). In order:
    the test launches; each compile is checked first by the preprocessor's own list of what the
    source includes (rtlab.labs.deps). ``{"event": "compile"}`` before each restarts the grader's setup limit.
 3. **Close the sandbox:** PoCL's binaries built (rtlab.backends.opencl), the system-call filter
-   installed; ``{"event": "ready"}``.
+   installed; ``{"event": "ready"}``. The process then waits for the grader's go: before any
+   submitted code has run, the grader takes the binaries just built into the run's shared kernel
+   cache, which seeds the next test processes (a program compiled once a grading run).
 4. **Run:** ``produce`` launches the submission's kernels; its raw outputs go back in one frame
    (``once``), or one per command (``serve``, the speed tests). The grader checks them.
 
@@ -186,6 +188,7 @@ def test_main(test_dir: Path) -> int:
                     break
                 _produce(kind, state, cmd.get("request") or {}, backend, recorder.programs)
         else:
+            next(_commands(), None)      # the grader's go, once it has taken the fresh binaries
             _produce(kind, state, {}, backend, recorder.programs)
     except KernelBuildError as e:
         _error("compile_error", str(e))

@@ -67,7 +67,7 @@ class SandboxUser:
     gid: int
 
 
-def sandbox_user() -> SandboxUser | None:
+def sandbox_user(env: dict | None = None) -> SandboxUser | None:
     """The unprivileged user test processes run as when the grader is root and that user can run
     this Python (its interpreter, numpy, pyopencl and rtlab readable to it); None otherwise: a
     grader that is not root keeps its own user, and a root grader whose Python lives where others
@@ -81,7 +81,7 @@ def sandbox_user() -> SandboxUser | None:
             pw = pwd.getpwnam(name)
         except KeyError:
             continue
-        if pw.pw_uid != 0 and _can_run_python(pw.pw_uid, pw.pw_gid):
+        if pw.pw_uid != 0 and _can_run_python(pw.pw_uid, pw.pw_gid, env or {}):
             return SandboxUser(name, pw.pw_uid, pw.pw_gid)
     return None
 
@@ -89,16 +89,17 @@ def sandbox_user() -> SandboxUser | None:
 _runs_python: dict = {}
 
 
-def _can_run_python(uid: int, gid: int) -> bool:
-    """Whether ``uid`` can start this Python and import what a test process imports (tried once)."""
+def _can_run_python(uid: int, gid: int, env: dict) -> bool:
+    """Whether ``uid`` can start this Python and import what a test process imports (``env``: the
+    test process's own settings), tried once a user."""
     import subprocess
     if uid not in _runs_python:
         try:
             r = subprocess.run([sys.executable, "-c", "import numpy, pyopencl, pyseccomp, rtlab.labs.run_test"],
                                user=uid, group=gid, extra_groups=[], cwd="/", capture_output=True, timeout=60,
                                env={"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": "/",
-                                    "PYTHONDONTWRITEBYTECODE": "1",
-                                    **{k: os.environ[k] for k in ("PYTHONPATH",) if k in os.environ}})
+                                    "PYTHONDONTWRITEBYTECODE": "1", "OPENBLAS_NUM_THREADS": "1",
+                                    **{k: os.environ[k] for k in ("PYTHONPATH",) if k in os.environ}, **env})
             _runs_python[uid] = r.returncode == 0
         except (OSError, subprocess.SubprocessError):
             _runs_python[uid] = False

@@ -183,6 +183,7 @@ class TraceRaysKind(Kind):
             probe = work_probe(ds, lambda: traced(PROBE_RAYS), PROBE_RAYS, request)
             if probe is not None:
                 return probe
+            ds.reserve_work_counters(len(o))        # the counting build counts the whole run too
         got = traced(len(o))
         return Produced({"t": got.t, "tri": got.tri}, {"kernel_ms": got.kernel_ms})
 
@@ -274,6 +275,7 @@ class RenderKind(Kind):
                                PROBE_IMAGE[0] * PROBE_IMAGE[1] + 64 * 64, request)
             if probe is not None:
                 return probe
+            device_scene_of(scene, backend).reserve_work_counters((scene.camera.width + 64) * (scene.camera.height + 64))
         r = render(scene, fresh_outputs(backend, request), variant, write_hits=True)
         arrays = {"image": r.image, "t": r.hits.t, "tri": r.hits.tri, "u": r.hits.u, "v": r.hits.v}
         return Produced(arrays, {"kernel_ms": float(r.kernel_ms[0])})
