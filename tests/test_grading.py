@@ -798,7 +798,7 @@ def test_bundle_in_a_simulated_gradescope_layout(tmp_path):
         shutil.rmtree(root / "results", ignore_errors=True)
         (root / "submission").mkdir()
         for name, text in files.items():              # Gradescope delivers an upload flat
-            (root / "submission" / name).write_text(text)
+            (root / "submission" / name).write_bytes(text.encode("latin-1"))
         subprocess.run(["bash", str(root / "source" / "run_autograder")], env=env, check=True,
                        capture_output=True, cwd=tmp_path)
         return json.loads((root / "results" / "results.json").read_text())
@@ -811,6 +811,18 @@ def test_bundle_in_a_simulated_gradescope_layout(tmp_path):
                  "rt_kdtree.h": f'#include "{root}/source/kernels/shared/rt_kdtree.h"\n'})
     assert cheat["score"] <= CONFIG.test("compile").points
     assert all("refused" in t["output"] for t in cheat["tests"] if t["score"] == 0 and t["name"] != "speed_bunny")
+    # the sandbox's adversaries, each with the template's camera_ray: at most the compile points
+    bom = b"\xef\xbb\xbf".decode("latin-1")
+    adversaries = {"byte-order mark": {
+        "rt_types.h": f'{bom}#include "{root}/source/kernels/shared/rt_types.h"\n',
+        "rt_kdtree.h": f'{bom}#include "{root}/source/kernels/shared/rt_kdtree.h"\n'}}
+    for name in ("exhaustive_walk", "wild_pointers"):
+        stored = materialize(name, tmp_path / name)
+        adversaries[name] = {"rt_types.h": template_text(CONFIG, "kernels/shared/rt_types.h"),
+                             "rt_kdtree.h": next(stored.rglob("rt_kdtree.h")).read_text()}
+    for name, files in adversaries.items():
+        got = run(files)
+        assert got["score"] <= CONFIG.test("compile").points, (name, got)
 
 
 # --------------------------------------------------------------------------------------------------

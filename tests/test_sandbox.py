@@ -279,12 +279,11 @@ def test_test_process_holds_no_expected_answer(tmp_path):
 def test_exhaustive_walk_fails_every_work_budget(tmp_path):
     """A traversal that visits every node and tests every leaf returns exact hits; it reads many
     times the tree the reference kernel reads on the same rays and fails every correctness test
-    that walks the scene, with that message even where its own launch then runs out of time (the
-    camera test, which walks nothing, still passes)."""
+    that walks the scene, stopped as soon as its count on the test's first rays is in (the camera
+    test, which walks nothing, still passes)."""
     sub = materialize("exhaustive_walk", tmp_path / "sub")
     report = grade("00_primary", sub, tests=["camera_rays", "trace_random_rays", "render_default"])
     assert report.test("camera_rays").passed
-    assert "hit the expected triangle" in report.test("trace_random_rays").output
     for name in ("trace_random_rays", "render_default"):
         t = report.test(name)
         assert t.score == 0 and "as much of the tree" in t.output and "brute force" in t.output, (name, t.output)

@@ -276,6 +276,7 @@ class GradingRun:
         self.device_name = ""
         self.reference: ReferenceWorker | None = None
         self.reference_lock = threading.Lock()
+        self.ref_counts: dict = {}
         from .trees import has_reference
         self.has_reference = has_reference(config.step)
 
@@ -401,14 +402,23 @@ class GradingRun:
                 "stubs": sorted({f for fs in self.tree.stubs.values() for f in fs})}
 
     def run_one(self, spec: TestSpec, prepared) -> ChildResult:
-        """A plain test: its process, then the grader's check of what came back."""
-        from .checks import KINDS
+        """A plain test: its process, then the grader's check of what came back; a process whose
+        work count breaks the budget is stopped there."""
+        from .checks import KINDS, work_budget_problem
         kind = KINDS[spec.kind]
         count = kind.counts_work(spec) and self.has_reference
         job = self.job(spec, count_work=count)
         d = self.test_dir(spec, prepared, job)
+        over = None
+        if count:
+            def over(work):
+                try:
+                    reference = self.reference_counts(spec, prepared)
+                except ProcessFailed:
+                    return False          # check_budget reports it
+                return work_budget_problem(work, reference, float(spec.tolerance["work_budget"])) is not None
         r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed,
-                     on_ready=lambda: self.builds.take(d / "pocl"))
+                     on_ready=lambda: self.builds.take(d / "pocl"), on_work=over)
         if r.status == "ok":
             r = self.check(spec, kind, prepared, r)
         if count and r.status not in ("compile_error", "error", "skipped", "deadline"):
@@ -452,9 +462,11 @@ class GradingRun:
         data = {**r.data, "work": [int(x) for x in work], "reference_work": [int(x) for x in reference]}
         problem = work_budget_problem(work, reference, float(spec.tolerance["work_budget"]))
         if problem:
-            head = r.output if r.status == "ok" else f"({r.output})"
-            return replace(r, status="ok", fraction=0.0, data=data,
-                           output=f"{head}\nbut on its first rays it {problem}")
+            head = {"ok": f"{r.output}\nbut on", "budget": "stopped: on"}.get(r.status, f"({r.output})\non")
+            return replace(r, status="ok", fraction=0.0, data=data, output=f"{head} its first rays it {problem}")
+        if r.status == "budget":
+            return replace(r, status="error", data=data, output="grader error (not your code): stopped for a work "
+                                                                 "budget it keeps")
         if r.status != "ok":
             return replace(r, data=data)
         ratio = max(int(a) / max(int(b), 1) for a, b in zip(work, reference))
@@ -462,11 +474,14 @@ class GradingRun:
 
     def reference_counts(self, spec: TestSpec, prepared):
         """(tree reads, triangle reads) of the reference kernel on the test's first rays."""
+        if spec.name in self.ref_counts:
+            return self.ref_counts[spec.name]
         worker = self.reference_worker()
         job = {**self.job(spec, count_work=True), "sandbox": False, "check_includes": False}
         header, arrays, _ = worker.produce(spec.name + ".work", job, input_bytes(prepared), {"probe_only": True}, 120.0)
         from .channel import expect_arrays
-        return expect_arrays(arrays, {"work": ("int64", (2,))})["work"]
+        self.ref_counts[spec.name] = expect_arrays(arrays, {"work": ("int64", (2,))})["work"]
+        return self.ref_counts[spec.name]
 
     def run_speed(self, spec: TestSpec, prepared) -> ChildResult:
         from .channel import ChannelError, expect_arrays

@@ -71,7 +71,7 @@ def default_jobs(memory_limit_mb: int) -> int:
 
 @dataclass
 class ChildResult:
-    status: str                 # ok, compile_error, crashed, timeout, memory, error, skipped, deadline
+    status: str                 # ok, compile_error, crashed, timeout, memory, error, skipped, deadline, budget
     output: str = ""
     arrays: dict = field(default_factory=dict)      # raw outputs (untrusted until a kind's check reads them)
     info: dict = field(default_factory=dict)
@@ -159,6 +159,7 @@ class TestProcess:
         self.ready = False
         self.paused = False
         self.work = None                # the work budget's counts, once the process sent them
+        self.on_work = None             # on_work(counts) -> True stops the process there
         r, w = os.pipe()
         self.log = open(self.dir / "log.txt", "wb")
         kwargs = {}
@@ -291,6 +292,10 @@ class TestProcess:
                                                 seconds=time.monotonic() - self.t0, programs=self.programs))
             if event == "work" and "work" in arrays:
                 self.work = arrays["work"]
+                if self.on_work is not None and self.on_work(self.work):
+                    self.kill()
+                    raise ProcessFailed(ChildResult("budget", "", data=self._data(), seconds=time.monotonic() - self.t0,
+                                                    programs=self.programs))
             if event in events:
                 return header, arrays
 
@@ -361,10 +366,12 @@ def _merge_launched(programs: list, launched) -> None:
 
 
 def run_once(test_dir: Path, env: dict, limits: Limits, user=None, sandboxed: bool = True,
-             on_ready=None) -> ChildResult:
+             on_ready=None, on_work=None) -> ChildResult:
     """Run a one-shot test process to its result (or its failure). ``on_ready()`` runs when its
-    kernels are built and before it runs any submitted code (it waits for the grader's go)."""
+    kernels are built and before it runs any submitted code (it waits for the grader's go);
+    ``on_work(counts)`` when it sends its work count, and stops it (status "budget") if true."""
     proc = TestProcess(test_dir, env, limits, user, sandboxed=sandboxed)
+    proc.on_work = on_work
     try:
         proc.wait_for(("ready",), None)
         if on_ready is not None:
