@@ -18,7 +18,6 @@ import platform
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 

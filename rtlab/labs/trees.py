@@ -11,13 +11,12 @@ to the lab step whose grading.toml lists its function. From that:
   step or a later one;
 * the **student release** stubs every region of every step.
 
-The reference the speed tests time against is a separate copy (:func:`reference_tree`) in its own
-temporary folder; its path reaches only the speed test's fixture, never a student compile.
+The reference the speed tests time against and the work budgets count with is compiled by the
+grader's reference worker from this installation's kernels, in a process that never loads a
+submission (rtlab.labs.grader).
 """
 from __future__ import annotations
 
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,13 +84,6 @@ def copy_stubbed(src: Path, dst: Path, keep_before: str | None) -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
         text = read_text(src / Path(rel).relative_to("kernels"))
         out.write_bytes(stub_steps(text, rel, keep_before, owners).encode("latin-1"))
-
-
-def reference_tree() -> Path:
-    """A copy of the reference kernels in a folder of its own (the speed tests' reference)."""
-    out = Path(tempfile.mkdtemp(prefix="rtlab-reference-")) / "kernels"
-    shutil.copytree(reference_kernels(), out, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-    return out
 
 
 # --------------------------------------------------------------------------------------------------
