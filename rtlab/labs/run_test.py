@@ -212,6 +212,8 @@ def reference_main() -> int:
                 if key not in backends:
                     backends[key] = get_backend(*key)
                 spec, kind, state = _setup(job, inputs, backends[key])
+                if hasattr(backends[key], "prebuild_for_sandbox"):
+                    backends[key].prebuild_for_sandbox()     # launch the binaries a test process launches
                 tests[name] = (kind, state, backends[key])
                 _send({"event": "ready", "test": name})
             elif op == "produce":

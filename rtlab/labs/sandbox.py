@@ -334,6 +334,10 @@ def install_syscall_filter() -> None:
     f = sc.SyscallFilter(sc.ALLOW)
     f.set_attr(sc.Attr.CTL_TSYNC, 1)
     f.set_attr(sc.Attr.CTL_NNP, 1)
+    try:
+        f.set_attr(sc.Attr.CTL_OPTIMIZE, 2)      # a binary tree of rules: PoCL's threads make many futex calls
+    except OSError:
+        pass                                     # libseccomp < 2.5
     arch = sc.system_arch()
     for name in FORBIDDEN_SYSCALLS:
         try:
