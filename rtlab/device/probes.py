@@ -13,7 +13,7 @@ from ..scene.model import Scene
 from .kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
 from .layout import float4_rows
 from .scene import device_scene
-from .tracing import TraceResult, default_variant, unpack_hits
+from .tracing import TraceResult, resolve_variant, unpack_hits
 from .whitted import SHADOWS_STEP, TREE_STEP
 
 SECONDARY_KINDS = {"reflection": int(kernel_constant("RT_RAY_REFLECTION")),
@@ -32,7 +32,7 @@ def hit_records(t, tri, u, v) -> np.ndarray:
 def _probe_program(scene: Scene, backend, step: str, variant: Variant | None):
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
-    variant = variant or default_variant(backend)
+    variant = resolve_variant(variant, backend)
     ds = device_scene(scene, backend)
     program = load_program(backend, step, variant, ds.features(variant))
     ds.set_constants(program, None, variant)
