@@ -6,7 +6,8 @@ times the triangle's largest |coordinate| along each axis of the normal (rt_shad
 rtlab.device.spawn). An object is warned about when that offset exceeds SPAWN_OFFSET_FRACTION of
 its size (a unit box at 1e6 is left 0.7 units away: reflections off the floor it stands on miss it),
 and the warning counts its triangles that rounding to float32 has collapsed to zero area (a unit
-object at 1e8). An object is a set of triangles joined by shared vertices.
+object at 1e8). An object is a set of triangles joined by shared corners: vertices at the same float32
+position count as one (flat-shaded and STL meshes repeat them per face).
 """
 from __future__ import annotations
 
@@ -71,7 +72,9 @@ def object_scale_warnings(vertices: np.ndarray, faces: np.ndarray, where: str) -
     limit = spawn_offset(np.abs(v[finite]).max()) / SPAWN_OFFSET_FRACTION
     if not np.any(ok & (tri_size < limit)):
         return []
-    label = vertex_components(len(v), f)[f[:, 0]]                  # component of each triangle
+    _, at = np.unique(np.asarray(vertices, np.float32), axis=0, return_inverse=True)   # weld by position
+    welded = at.reshape(-1)[f]
+    label = vertex_components(int(welded.max()) + 1, welded)[welded[:, 0]]   # component of each triangle
     objects, tri_object = np.unique(label[ok], return_inverse=True)
     fo = f[ok]
     n_obj = len(objects)
@@ -98,7 +101,8 @@ def object_scale_warnings(vertices: np.ndarray, faces: np.ndarray, where: str) -
     out = []
     for k in worst[:MAX_OBJECT_WARNINGS]:
         share = "more than its size" if not np.isfinite(ratio[k]) or ratio[k] >= 1 else f"{100 * ratio[k]:.2g} % of its size"
-        text = (f"{where}: an object of {n_tris[k]} triangles (the first is triangle {first_tri[k]}), {size[k]:.3g} across, "
+        text = (f"{where}: an object of {n_tris[k]} triangle{'s' if n_tris[k] > 1 else ''} (the first is triangle "
+                f"{first_tri[k]}), {size[k]:.3g} across, "
                 f"reaches {magnitude[k]:.3g} from the origin, where float32 spacing is {float(float32_spacing(magnitude[k])):.3g}: "
                 f"a ray leaving it starts up to {offset[k]:.3g} off its surface ({share}; more than "
                 f"{100 * SPAWN_OFFSET_FRACTION:g} % is warned), so shadow and reflection rays near it can miss it")
