@@ -18,7 +18,7 @@ for step in "$@"; do
         tests/test_trace_api.py -k "gpu or brute_force or refined_t or spawn or directions or interval or variant or 13- or 14- or 15-"
       RTLAB_TEST_BACKENDS=cuda,opencl:NVIDIA log python -m pytest -q -rfEs tests/test_traversal.py tests/test_intersect.py ;;
     refine)
-      log python benchmarks/bench_t_refine.py --backend cuda --size 1024 --rounds 7 --repeats 9 --md "$MD"
+      log python benchmarks/bench_t_refine.py --backend cuda --size 1024 --rounds 7 --repeats 9 --max-registers 0,64 --md "$MD"
       log python benchmarks/bench_t_refine.py --backend opencl --device NVIDIA --size 1024 --rounds 7 --repeats 9 \
         --no-slivers --md "$MD" ;;
     robust)
