@@ -29,8 +29,10 @@
  * loader allows the fused form (RT_BVH_BOX_FMA); lanes without a ray are parked (RayPacket). With
  * RT_CONSERVATIVE the inverse is the exact 1/d, a 0 * inf of a ray in a box's plane is taken as the
  * slab's unbounded side (clip_slab's fmin/fmax rule), and the far distance is widened by its
- * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Moller-Trumbore runs on the
- * lanes; the other triangle tests run lane by lane through the shared intersect_tri.
+ * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Boxes are culled against t_cull
+ * of each lane's closest hit (lf_t_cull), the pad every traversal uses, so a tie at equal t is kept.
+ * Moller-Trumbore runs on the lanes; the other triangle tests run lane by lane through the shared
+ * intersect_tri.
  */
 #ifndef RT_BVH_PACKET_H
 #define RT_BVH_PACKET_H
