@@ -53,6 +53,8 @@ def test_spawn_rays_give_the_kernels_own_origins(backend):
     spawned = k_w > 0
     assert spawned.sum() > 0.5 * len(o)
     p_o, p_d = spawn_rays(scene, hits, k_d)
+    same_o, _ = hits.spawn(scene, k_d)
+    assert np.array_equal(same_o, p_o, equal_nan=True)
     assert np.array_equal(p_d[spawned], k_d[spawned])
     ulp = np.spacing(np.abs(k_o[spawned]).astype(np.float32))
     assert np.all(np.abs(p_o[spawned] - k_o[spawned]) <= 3 * ulp), np.max(np.abs(p_o[spawned] - k_o[spawned]) / ulp)

@@ -55,6 +55,16 @@ class TraceResult:
     def hit(self) -> np.ndarray:
         return self.tri >= 0
 
+    def points(self, scene: Scene):
+        """The hits' points with their rounding bounds and normals: rtlab.hit_points(scene, self)."""
+        from .spawn import hit_points
+        return hit_points(scene, self)
+
+    def spawn(self, scene: Scene, directions) -> tuple[np.ndarray, np.ndarray]:
+        """Rays leaving these hits in ``directions``, origins offset as the kernels' own (spawn_rays)."""
+        from .spawn import spawn_rays
+        return spawn_rays(scene, self, directions)
+
 
 def unpack_hits(records: np.ndarray) -> tuple[np.ndarray, ...]:
     h = records.view(HIT_DTYPE).reshape(-1)
