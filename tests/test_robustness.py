@@ -229,14 +229,14 @@ def test_direction_length_changes_nothing(backend):
     assert not bad, "\n".join(bad)
 
 
-# ---- issue 21's families ----------------------------------------------------------------------
+# ---- families 13-15: which hit the closest-hit choice takes ------------------------------------
 def test_every_traversal_returns_the_brute_force_ids_at_ties(backend):
     """Families 14 (SPONZA: rays exactly through vertices on kd split planes with triangles on both
     sides, exactly through shared edges, at coplanar copies and halves at random ids) and 13 (grazing
     slivers with blockers): every traversal returns, ray for ray, the triangle and the t of the brute
     force in the kernels' own arithmetic (every triangle in a loop, closer_hit's tie rule), for the
     watertight test. The kd traversals culled the far cell at the unpadded hit t and lost the lower id
-    there, the BVH packet a box entered at that t (the issue's SPONZA and CONFERENCE rays)."""
+    there, the BVH packet a box entered at that t."""
     from rtlab.device.probes import probe_brute_force
     require_scene_file("sponza/sponza.obj")
     cases = family_cases(14, "test") + family_cases(13, "test")[:1]

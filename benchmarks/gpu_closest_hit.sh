@@ -1,14 +1,15 @@
 #!/bin/bash
-# Issue 21 on the GPU machine, CUDA and NVIDIA OpenCL: what the watertight test's refined t costs
-# through trace() on the benchmark rays (RT_REFINE_T 0 against 1, alternating on the same rays, error
-# columns beside), the robustness suite's families 13-15 and the watertight rows of all families at
-# bench size, and the tests of the issue on both backends (the gpu-marked ones included).
-# Usage (device run, carry .device):  source .device/setup.sh && bash benchmarks/gpu_issue21.sh [step ...]
+# The closest-hit numerics on the GPU machine, CUDA and NVIDIA OpenCL: what the watertight test's
+# refined t costs through trace() on the benchmark rays (RT_REFINE_T 0 against 1, alternating on the
+# same rays, error columns beside; with and without a cap of 64 registers on CUDA), the robustness
+# suite's families 13-15 and the watertight rows of the others at bench size, and the tests of the
+# refined t, the tie rule, the input checks and spawn_rays on both backends (gpu-marked ones included).
+# Usage (device run, carry .device):  source .device/setup.sh && bash benchmarks/gpu_closest_hit.sh [step ...]
 # Steps: tests, refine, robust (all three by default). Each step is capped by STEP_TIMEOUT seconds.
 set -u
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
-MD="$OUT/issue21.md"
-LOG="$OUT/issue21.log"
+MD="$OUT/closest_hit.md"
+LOG="$OUT/closest_hit.log"
 log() { echo "\$ $*" | tee -a "$LOG"; timeout ${STEP_TIMEOUT:-560} "$@" >> "$LOG" 2>&1; echo "exit $?" | tee -a "$LOG"; }
 [ $# -gt 0 ] || set -- tests refine robust
 for step in "$@"; do
