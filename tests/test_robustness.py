@@ -119,6 +119,33 @@ def test_refined_t_is_what_keeps_slivers_right(backend):
     assert counts[1] == (0, 0) and counts[0][0] > 0 and counts[0][1] > case.n_rays // 10, counts
 
 
+@pytest.mark.parametrize("traversal", ["stack", "bvh", "bvh-packet"])
+def test_tmin_just_before_a_grazing_sliver_keeps_it(backend, traversal):
+    """Family 13's made slivers at grazing angles, traced with tmin 2e-5 of t before the float64 hit
+    (the sliver must be hit) and 2e-5 after it (it must not be), on the rays where the kernel names
+    the reference's triangle (the others graze an edge: ties): Woop et al.'s t, off by up to 0.5 %
+    there, dropped hits just beyond tmin; the plane distance in double keeps every one."""
+    from rtlab.device.kernels import Variant
+    from rtlab.device.tracing import trace
+    require_scene_file("sponza/sponza.obj")
+    case = family_cases(13, "test")[0]
+    ref = case.reference()
+    variant = Variant(traversal, "watertight")
+    full = trace(case.scene, case.origins, case.directions, backend=backend, variant=variant)
+    hit = np.flatnonzero((ref.tri >= 0) & (full.tri == ref.tri))
+    assert hit.size > 0.9 * np.sum(ref.tri >= 0)
+    o, d, t_ref, want = case.origins[hit], case.directions[hit], ref.t[hit], ref.tri[hit]
+    lost = {}
+    for refine in (1, 0):
+        before = trace(case.scene, o, d, backend=backend, variant=variant, tmin=t_ref * (1 - 2e-5),
+                       defines={"RT_REFINE_T": refine})
+        after = trace(case.scene, o, d, backend=backend, variant=variant, tmin=t_ref * (1 + 2e-5),
+                      defines={"RT_REFINE_T": refine})
+        lost[refine] = (int(np.sum(before.tri != want)), int(np.sum(after.tri == want)))
+    assert lost[1] == (0, 0), f"{traversal}: {lost[1][0]} hits dropped just beyond tmin, {lost[1][1]} kept before it"
+    assert sum(lost[0]) > 0, "Woop's own t should get some of these wrong (the test would not notice a regression)"
+
+
 def test_leaks_are_the_lesson(backend):
     """The suite must be able to fail: on the far-away sphere and the jittered plane, Möller–Trumbore
     with the stack traversal lets rays through where the watertight test lets none."""
