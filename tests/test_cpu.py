@@ -125,7 +125,7 @@ def test_render_any_width_and_the_single_ray_path(backend, default_scene):
 @pytest.mark.parametrize("width", [2, 4, 8])
 def test_packet_layout_matches_the_mesh(width):
     """Nodes of up to `width` children, used slots first; each child box holds the triangles below
-    it; leaves: rows (v0, v1 - v0, v2 - v0, id) of the mesh's own triangles, every usable triangle
+    it; leaves: rows (v0, v1, v2, id) of the mesh's own triangles, every usable triangle
     once; the stack holds what a walk down the deepest path pushes (checked from the mesh and the
     rows, not from the builder)."""
     scene = rtlab.load_scene("default", size=16)
@@ -161,7 +161,7 @@ def test_packet_layout_matches_the_mesh(width):
             tri = int(ints[r, 3])
             v0, v1, v2 = v[f[tri]]
             assert np.array_equal(rows[r, :3], v0)
-            assert np.array_equal(rows[r + 1, :3], v1 - v0) and np.array_equal(rows[r + 2, :3], v2 - v0)
+            assert np.array_equal(rows[r + 1, :3], v1) and np.array_equal(rows[r + 2, :3], v2)
             ids.append(tri)
         return np.array(ids, np.int64), 0
 

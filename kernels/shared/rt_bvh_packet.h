@@ -18,26 +18,30 @@
  *
  * Layout in node_data, float4 rows (sync with rtlab/accel/bvh_packet.py), nodes first:
  *   node i, child c < W: rows 2 W i + 2 c, 2 W i + 2 c + 1 = (lo.xyz, ref), (hi.xyz, 0)
- *   then each leaf's triangles, 3 rows each: (v0.xyz, triangle id), (v1 - v0, 0), (v2 - v0, 0)
+ *   then each leaf's triangles, 3 rows each: (v0.xyz, triangle id), (v1.xyz, 0), (v2.xyz, 0)
  * A child ref >= 0 is an inner node; a leaf is ~((row << 4) | count): count triangles from node_data
  * row `row`, so a leaf reads its triangles without the object list's indirection. Used slots come
  * first; an unused one has ref PBVH_EMPTY. The root is node 0 and inner. RT_STACK_SIZE is what a
  * walk down the deepest path can push, (W - 1) x depth + 1 (AccelArrays.stack_size).
  *
  * Boxes are clipped with min/max, which have no NaN rule, so no lane may make a NaN: the inverse
- * direction is bvh_inverse's (finite), and the slabs are (b - o) inv, or b inv - o inv where the
- * loader allows the fused form (RT_BVH_BOX_FMA); lanes without a ray are parked (RayPacket). With
- * RT_CONSERVATIVE the inverse is the exact 1/d, a 0 * inf of a ray in a box's plane is taken as the
- * slab's unbounded side (clip_slab's fmin/fmax rule), and the far distance is widened by its
- * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Boxes are culled against t_cull
- * of each lane's closest hit (lf_t_cull), the pad every traversal uses, so a tie at equal t is kept.
- * Moller-Trumbore runs on the lanes; the other triangle tests run lane by lane through the shared
- * intersect_tri.
+ * direction is bvh_inverse's (finite), and the slabs are b inv - o inv with o inv padded as rt_bvh.h
+ * pads it where the loader allows that fused form (RT_BVH_BOX_FMA: scenes near the origin), else
+ * (b - o) inv; lanes without a ray are parked (RayPacket). A lane whose direction has no component
+ * along an axis is decided by whether it lies inside the slab (clip_slab's fmin/fmax rule for the
+ * 0 * inf of a ray in a box's plane). With RT_CONSERVATIVE the exact form takes the exact 1/d, and
+ * the far distance is widened by its rounding bound RT_T_PAD (Ize 2013) in either form, as
+ * clip_entering_ray_box and rt_bvh.h do. Boxes are culled against t_cull of each lane's closest hit
+ * (lf_t_cull), the pad every traversal uses, so a tie at equal t is kept.
+ * Moller-Trumbore and the watertight test run on the lanes (rt_intersect_lanes.h, the scalar tests'
+ * arithmetic: the same ids and t as every other traversal); Wald's and Plucker's tests run lane by
+ * lane through the shared intersect_tri.
  */
 #ifndef RT_BVH_PACKET_H
 #define RT_BVH_PACKET_H
 #include "rt_bvh.h"
 #include "rt_intersect.h"
+#include "rt_intersect_lanes.h"
 #include "rt_lanes.h"
 #include "rt_memory.h"
 
@@ -51,7 +55,7 @@
 
 /* The fused slab form b inv - o inv (rt_bvh.h's RT_BVH_BOX_FMA; the loader sets that for scenes
  * near the origin whose coordinates times 2^64 stay finite, so no lane can make inf - inf) */
-#if defined(RT_BVH_BOX_FMA) && RT_BVH_BOX_FMA && !RT_CONSERVATIVE
+#if defined(RT_BVH_BOX_FMA) && RT_BVH_BOX_FMA
 #define RT_PACKET_BOX_FMA 1
 #else
 #define RT_PACKET_BOX_FMA 0
@@ -62,13 +66,22 @@
 typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;
-    lanef ix, iy, iz;              /* bvh_inverse(d), finite; with RT_CONSERVATIVE 1/d */
+    lanef ix, iy, iz;              /* bvh_inverse(d), finite; 1/d in the exact form with RT_CONSERVATIVE */
     lanei zx, zy, zz;              /* lanes whose direction component is zero (|d| <= RT_BVH_MIN_DIR) */
 #if RT_PACKET_BOX_FMA
     lanef onx, ony, onz;           /* o * inv plus its rounding bound (the fused form's near planes) */
     lanef ofx, ofy, ofz;           /* o * inv minus it (far planes): rt_bvh.h's bvh_ray, lane by lane */
 #endif
     lanef tmin;
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+    /* The watertight test's per-ray part (watertight_axes), lane by lane: axes as lane ints, the
+     * shear, the origin in each lane's axis order; `uniform` when every live lane has the same
+     * axes (camera rays nearly always), then also as scalars */
+    lanei kx, ky, kz;
+    lanef sx, sy, sz;
+    lanef okx, oky, okz;
+    int uniform, ukx, uky, ukz;
+#endif
 } RayPacket;
 
 /* Closest hits so far, never NaN; a lane without a ray keeps t = -inf. */
@@ -89,6 +102,41 @@ RT_FN void packet_origin_pads(lanef o, lanef inv, lanef *o_near, lanef *o_far)
 }
 #endif
 
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+/* Lane by lane, the component of (x, y, z) that axis k (0, 1, 2) names */
+RT_FN lanef lf_axis(lanei k, lanef x, lanef y, lanef z)
+{
+    return lf_select(lf_select(z, y, li_eq(k, li_splat(1))), x, li_eq(k, li_splat(0)));
+}
+
+/* watertight_axes of each lane's ray, in lane vectors (the same comparisons and roundings) */
+RT_FN void packet_watertight_axes(RayPacket *p, lanei live)
+{
+    lanef ax = lf_abs(p->dx), ay = lf_abs(p->dy), az = lf_abs(p->dz);
+    lanei zero = li_splat(0), one = li_splat(1), two = li_splat(2);
+    p->kz = li_select(li_select(two, one, lf_lt(az, ay)), li_select(two, zero, lf_lt(az, ax)), lf_lt(ay, ax));
+    p->kx = li_select(li_add1(p->kz), zero, li_eq(p->kz, two));
+    p->ky = li_select(li_add1(p->kx), zero, li_eq(p->kx, two));
+    lanei swap = lf_lt(lf_axis(p->kz, p->dx, p->dy, p->dz), lf_splat(0.0f));
+    lanei kx = p->kx;
+    p->kx = li_select(p->kx, p->ky, swap);
+    p->ky = li_select(p->ky, kx, swap);
+    p->sz = lf_div(1.0f, lf_axis(p->kz, p->dx, p->dy, p->dz));
+    p->sx = lf_mul(lf_axis(p->kx, p->dx, p->dy, p->dz), p->sz);
+    p->sy = lf_mul(lf_axis(p->ky, p->dx, p->dy, p->dz), p->sz);
+    p->okx = lf_axis(p->kx, p->ox, p->oy, p->oz);
+    p->oky = lf_axis(p->ky, p->ox, p->oy, p->oz);
+    p->okz = lf_axis(p->kz, p->ox, p->oy, p->oz);
+    int bits = lane_bits(live);
+    int first = bits ? rt_ctz(bits) : 0;
+    p->ukx = li_get(p->kx, first);
+    p->uky = li_get(p->ky, first);
+    p->ukz = li_get(p->kz, first);
+    lanei same = li_and(li_eq(p->kx, li_splat(p->ukx)), li_eq(p->ky, li_splat(p->uky)));
+    p->uniform = lane_bits(li_and(same, live)) == bits;
+}
+#endif
+
 /* The packet of rays o + t d, t in (tmin, tmax), lane by lane (all lanes vector operations);
  * returns the lanes that hold a ray that can enter a box (ray_can_enter's rule). */
 RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz,
@@ -103,7 +151,7 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     p->dx = lf_select(zero, dx, live);
     p->dy = lf_select(zero, dy, live);
     p->dz = lf_select(zero, dz, live);
-#if RT_CONSERVATIVE
+#if RT_CONSERVATIVE && !RT_PACKET_BOX_FMA
     p->ix = lf_select(one, lf_div(1.0f, dx), live);
     p->iy = lf_select(one, lf_div(1.0f, dy), live);
     p->iz = lf_select(one, lf_div(1.0f, dz), live);
@@ -125,6 +173,9 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     h->u = zero;
     h->v = zero;
     h->tri = li_splat(-1);
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+    packet_watertight_axes(p, live);
+#endif
     return live;
 }
 
@@ -206,31 +257,12 @@ RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 h
     return lf_le(t0, lf_min(t1, t_cut));
 }
 
-/* Moller-Trumbore (intersect_ray_tri_moller's arithmetic) on every lane against one triangle:
- * v0 and its edges e1 = v1 - v0, e2 = v2 - v0 as the layout stores them. Updates the lanes that
- * hit nearer than their hit so far and beyond tmin; returns those lanes. */
-RT_FN lanei packet_tri_moller(const RayPacket *p, HitPacket *h, float3 v0, float3 e1, float3 e2, int tri)
+/* Update the lanes in m whose hit (t, u, v) on triangle tri is closer_hit's: beyond tmin, nearer
+ * than their hit so far, or as near on a lower triangle id; returns those lanes. */
+RT_FN lanei packet_take_hits(const RayPacket *p, HitPacket *h, lanei m, lanef t, lanef u, lanef v, int tri)
 {
-    lanef px = lf_cross1(p->dy, e2.z, p->dz, e2.y);
-    lanef py = lf_cross1(p->dz, e2.x, p->dx, e2.z);
-    lanef pz = lf_cross1(p->dx, e2.y, p->dy, e2.x);
-    lanef det = lf_dot3s(px, py, pz, e1.x, e1.y, e1.z);
-    lanef inv_det = lf_div(1.0f, det);
-    lanef sx = lf_sub(p->ox, lf_splat(v0.x));
-    lanef sy = lf_sub(p->oy, lf_splat(v0.y));
-    lanef sz = lf_sub(p->oz, lf_splat(v0.z));
-    lanef u = lf_mul(lf_dot3(sx, sy, sz, px, py, pz), inv_det);
-    lanef qx = lf_cross1(sy, e1.z, sz, e1.y);
-    lanef qy = lf_cross1(sz, e1.x, sx, e1.z);
-    lanef qz = lf_cross1(sx, e1.y, sy, e1.x);
-    lanef v = lf_mul(lf_dot3(p->dx, p->dy, p->dz, qx, qy, qz), inv_det);
-    lanef t = lf_mul(lf_dot3s(qx, qy, qz, e2.x, e2.y, e2.z), inv_det);
-    lanef zero = lf_splat(0.0f), one = lf_splat(1.0f);
-    lanei m = li_and(li_and(lf_le(zero, u), lf_le(u, one)), li_and(lf_le(zero, v), lf_le(lf_add(u, v), one)));
-    /* closer_hit's rule, lane by lane: nearer, or as near on a lower triangle id */
     lanei closer = li_or(lf_lt(t, h->t), li_and(lf_eq(t, h->t), li_lt(li_splat(tri), h->tri)));
     m = li_and(m, li_and(lf_lt(p->tmin, t), closer));
-    m = li_andnot(m, lf_eq(det, zero));
     h->t = lf_select(h->t, t, m);
     h->u = lf_select(h->u, u, m);
     h->v = lf_select(h->v, v, m);
@@ -238,7 +270,74 @@ RT_FN lanei packet_tri_moller(const RayPacket *p, HitPacket *h, float3 v0, float
     return m;
 }
 
-#if RT_ISECT != RT_ISECT_MOLLER
+/* Moller-Trumbore (lanes_moller) on every lane against triangle tri (v0, v1, v2); updates the
+ * lanes it hits nearer than their hit so far and returns them. */
+RT_FN lanei packet_tri_moller(const RayPacket *p, HitPacket *h, float3 v0, float3 v1, float3 v2, int tri)
+{
+    float3 e1 = sub3(v1, v0), e2 = sub3(v2, v0);
+    lanef u, v, t;
+    lanei m = lanes_moller(p->ox, p->oy, p->oz, p->dx, p->dy, p->dz, lf_splat(v0.x), lf_splat(v0.y), lf_splat(v0.z),
+                           lf_splat(e1.x), lf_splat(e1.y), lf_splat(e1.z), lf_splat(e2.x), lf_splat(e2.y),
+                           lf_splat(e2.z), &u, &v, &t);
+    return packet_take_hits(p, h, m, t, u, v, tri);
+}
+
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+/* The watertight test (lanes_watertight_edges, then intersect_ray_tri_watertight's distance) on the
+ * lanes in `live` against triangle tri; updates the lanes it hits nearer than their hit so far and
+ * returns them. */
+RT_FN lanei packet_tri_watertight(const RayPacket *p, HitPacket *h, lanei live, float3 v0, float3 v1, float3 v2,
+                                  int tri)
+{
+    /* The vertices moved to each lane's origin in its axis order: by scalars where the axes agree */
+    lanef ax, ay, az, bx, by, bz, cx, cy, cz;
+    if (p->uniform) {
+        ax = lf_sub(lf_splat(get3(v0, p->ukx)), p->okx);
+        ay = lf_sub(lf_splat(get3(v0, p->uky)), p->oky);
+        az = lf_sub(lf_splat(get3(v0, p->ukz)), p->okz);
+        bx = lf_sub(lf_splat(get3(v1, p->ukx)), p->okx);
+        by = lf_sub(lf_splat(get3(v1, p->uky)), p->oky);
+        bz = lf_sub(lf_splat(get3(v1, p->ukz)), p->okz);
+        cx = lf_sub(lf_splat(get3(v2, p->ukx)), p->okx);
+        cy = lf_sub(lf_splat(get3(v2, p->uky)), p->oky);
+        cz = lf_sub(lf_splat(get3(v2, p->ukz)), p->okz);
+    } else {
+        lanef x = lf_splat(v0.x), y = lf_splat(v0.y), z = lf_splat(v0.z);
+        ax = lf_sub(lf_axis(p->kx, x, y, z), p->okx);
+        ay = lf_sub(lf_axis(p->ky, x, y, z), p->oky);
+        az = lf_sub(lf_axis(p->kz, x, y, z), p->okz);
+        x = lf_splat(v1.x), y = lf_splat(v1.y), z = lf_splat(v1.z);
+        bx = lf_sub(lf_axis(p->kx, x, y, z), p->okx);
+        by = lf_sub(lf_axis(p->ky, x, y, z), p->oky);
+        bz = lf_sub(lf_axis(p->kz, x, y, z), p->okz);
+        x = lf_splat(v2.x), y = lf_splat(v2.y), z = lf_splat(v2.z);
+        cx = lf_sub(lf_axis(p->kx, x, y, z), p->okx);
+        cy = lf_sub(lf_axis(p->ky, x, y, z), p->oky);
+        cz = lf_sub(lf_axis(p->kz, x, y, z), p->okz);
+    }
+    lanef u, v, w, det;
+    lanei m = li_and(live, lanes_watertight_edges(ax, ay, az, bx, by, bz, cx, cy, cz, p->sx, p->sy, &u, &v, &w, &det));
+    if (!lane_any(m))
+        return m;
+    lanef inv_det = lf_div(1.0f, det);
+#if RT_REFINE_T
+    /* The edge functions decide whether; the plane decides where: plane_t_fp64 of each lane that
+     * passed, unrolled so that lanes are read by constant indices */
+    lanef t = lf_splat(0.0f);
+#pragma unroll
+    for (int k = 0; k < RT_LANES; ++k) {
+        if (li_get(m, k))
+            lf_set(&t, k, plane_t_fp64(f3(lf_get(p->ox, k), lf_get(p->oy, k), lf_get(p->oz, k)),
+                                       f3(lf_get(p->dx, k), lf_get(p->dy, k), lf_get(p->dz, k)), v0, v1, v2));
+    }
+#else
+    lanef t = lf_mul(lf_dot3_scaled(u, v, w, p->sz, az, bz, cz), inv_det);
+#endif
+    return packet_take_hits(p, h, m, t, lf_mul(v, inv_det), lf_mul(w, inv_det), tri);
+}
+#endif
+
+#if RT_ISECT != RT_ISECT_MOLLER && RT_ISECT != RT_ISECT_WATERTIGHT
 /* The other tests, lane by lane: the lane's ray rebuilt as make_ray builds it, the shared test on
  * triangle `tri`, the lane updated where it hit. */
 RT_FN lanei packet_tri_lanewise(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h, lanei live, int tri)
@@ -272,10 +371,14 @@ RT_FN lanei packet_leaf(RT_SCENE_PARAMS, int leaf, const RayPacket *p, HitPacket
     lanei found = li_splat(0);
     for (int i = 0; i < count; ++i, row += PBVH_TRI_ROWS) {
         float4 a = load_node_data(node_data, row);
+#if RT_ISECT == RT_ISECT_MOLLER || RT_ISECT == RT_ISECT_WATERTIGHT
+        float3 v1 = xyz(load_node_data(node_data, row + 1));
+        float3 v2 = xyz(load_node_data(node_data, row + 2));
+#endif
 #if RT_ISECT == RT_ISECT_MOLLER
-        float4 e1 = load_node_data(node_data, row + 1);
-        float4 e2 = load_node_data(node_data, row + 2);
-        found = li_or(found, packet_tri_moller(p, h, xyz(a), xyz(e1), xyz(e2), rt_as_int(a.w)));
+        found = li_or(found, packet_tri_moller(p, h, xyz(a), v1, v2, rt_as_int(a.w)));
+#elif RT_ISECT == RT_ISECT_WATERTIGHT
+        found = li_or(found, packet_tri_watertight(p, h, live, xyz(a), v1, v2, rt_as_int(a.w)));
 #else
         found = li_or(found, packet_tri_lanewise(RT_SCENE_ARGS, p, h, live, rt_as_int(a.w)));
 #endif

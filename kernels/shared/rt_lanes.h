@@ -17,9 +17,16 @@
  *                   memory, so read lanes in unrolled loops, where the index is a constant and the
  *                   read an extract: in a rolled loop LLVM stores every live vector each iteration
  *   lanes_load_rows the lanes of float4 rows (rays), whole packets by vector loads and shuffles
+ *   lf_load_rows    one lane vector stored as RT_LANES / 4 consecutive float4 rows (a wide BVH node's
+ *                   boxes, a block of triangles), read through a loader of rt_memory.h
+ *   lane_bits       a mask as an int, bit k for lane k (which children of a wide node a ray enters)
+ * The helpers that mirror a scalar expression (lf_sub_mul, lf_diff_of_products_rn, lf_dot3_scaled)
+ * are written as that one expression, so each lane rounds (and contracts into fused multiply-adds)
+ * exactly as the scalar code does: the lane triangle tests return the scalar tests' ids and t.
  */
 #ifndef RT_LANES_H
 #define RT_LANES_H
+#include "rt_memory.h"
 #include "rt_port.h"
 
 #ifndef RT_LANES                   /* rays in a packet; the loader sets it (rtlab.device.kernels.PACKET_LANES) */
@@ -91,6 +98,51 @@ RT_FN lanef lf_away_from_zero(lanef d, float tiny)
     RT_LANE_LOOP r.v[k_] = fabsf(d.v[k_]) > tiny ? d.v[k_] : copysignf(tiny, d.v[k_]);
     return r;
 }
+RT_FN lanei li_eq(lanei a, lanei b) { lanei r; RT_LANE_LOOP r.v[k_] = a.v[k_] == b.v[k_] ? -1 : 0; return r; }
+RT_FN lanei li_add1(lanei a) { lanei r; RT_LANE_LOOP r.v[k_] = a.v[k_] + 1; return r; }
+RT_FN void lf_store(float *p, lanef a) { RT_LANE_LOOP p[k_] = a.v[k_]; }
+RT_FN void li_store(int *p, lanei a) { RT_LANE_LOOP p[k_] = a.v[k_]; }
+RT_FN lanef lf_sub_mul(lanef a, lanef s, lanef c) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_] - s.v[k_] * c.v[k_]; return r; }
+RT_FN lanef lf_diff_mul(lanef a, lanef b, lanef c, lanef d)    /* a b - c d: cross3's component */
+{
+    lanef r;
+    RT_LANE_LOOP r.v[k_] = a.v[k_] * b.v[k_] - c.v[k_] * d.v[k_];
+    return r;
+}
+RT_FN lanef lf_diff_of_products_rn(lanef a, lanef b, lanef c, lanef d)
+{
+    lanef r;
+    RT_LANE_LOOP r.v[k_] = diff_of_products_rn(a.v[k_], b.v[k_], c.v[k_], d.v[k_]);
+    return r;
+}
+#if RT_HAS_FP64
+RT_FN lanef lf_diff_of_products_fp64(lanef a, lanef b, lanef c, lanef d)
+{
+    lanef r;
+    RT_LANE_LOOP r.v[k_] = (float)((double)a.v[k_] * (double)b.v[k_] - (double)c.v[k_] * (double)d.v[k_]);
+    return r;
+}
+#endif
+RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y, lanef z)
+{
+    lanef r;
+    RT_LANE_LOOP r.v[k_] = a.v[k_] * (s.v[k_] * x.v[k_]) + b.v[k_] * (s.v[k_] * y.v[k_]) + c.v[k_] * (s.v[k_] * z.v[k_]);
+    return r;
+}
+RT_FN int lane_bits(lanei m) { int r = 0; RT_LANE_LOOP r |= m.v[k_] ? 1 << k_ : 0; return r; }
+RT_FN lanei li_of_bits(lanef a) { lanei r; RT_LANE_LOOP r.v[k_] = __float_as_int(a.v[k_]); return r; }
+RT_FN lanef lf_join4(float4 a, float4 b, float4 c, float4 d)
+{
+    float4 q[4] = {a, b, c, d};
+    lanef r;
+    RT_LANE_LOOP {
+        float4 e = q[k_ >> 2];
+        r.v[k_] = (k_ & 3) == 0 ? e.x : (k_ & 3) == 1 ? e.y : (k_ & 3) == 2 ? e.z : e.w;
+    }
+    return r;
+}
+#define lf_join1(a) lf_join4((a), (a), (a), (a))
+#define lf_join2(a, b) lf_join4((a), (b), (a), (b))
 /* Lanes 0 .. count - 1 of x, y, z, w from p[first ..] (float4 rows); the others 0 */
 RT_FN void lanes_load_rows(RT_GLOBAL const float4 *p, int first, int count, lanef *x, lanef *y, lanef *z, lanef *w)
 {
@@ -174,6 +226,80 @@ RT_FN lanei lf_finite(lanef a) { return isfinite(a); }
 RT_FN lanef lf_away_from_zero(lanef d, float tiny) { return select(copysign((lanef)(tiny), d), d, fabs(d) > tiny); }
 RT_FN lanei lf_tiny(lanef a, float tiny) { return fabs(a) <= (lanef)(tiny); }
 RT_FN lanef lf_abs(lanef a) { return fabs(a); }
+RT_FN lanei li_eq(lanei a, lanei b) { return a == b; }
+RT_FN lanei li_add1(lanei a) { return a + 1; }
+/* The lanes into a private array (a traversal's few dynamically indexed reads) */
+#if RT_LANES == 4
+RT_FN void lf_store(float *p, lanef a) { vstore4(a, 0, p); }
+RT_FN void li_store(int *p, lanei a) { vstore4(a, 0, p); }
+#elif RT_LANES == 8
+RT_FN void lf_store(float *p, lanef a) { vstore8(a, 0, p); }
+RT_FN void li_store(int *p, lanei a) { vstore8(a, 0, p); }
+#else
+RT_FN void lf_store(float *p, lanef a) { vstore16(a, 0, p); }
+RT_FN void li_store(int *p, lanei a) { vstore16(a, 0, p); }
+#endif
+RT_FN lanef lf_sub_mul(lanef a, lanef s, lanef c) { return a - s * c; }
+RT_FN lanef lf_diff_mul(lanef a, lanef b, lanef c, lanef d) { return a * b - c * d; }
+RT_FN lanef lf_diff_of_products_rn(lanef a, lanef b, lanef c, lanef d)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    return a * b - c * d;
+}
+#if RT_HAS_FP64
+#if RT_LANES == 4
+#define RT_LANE_DOUBLE(a) convert_double4(a)
+#define RT_LANE_FLOAT(a) convert_float4(a)
+#elif RT_LANES == 8
+#define RT_LANE_DOUBLE(a) convert_double8(a)
+#define RT_LANE_FLOAT(a) convert_float8(a)
+#else
+#define RT_LANE_DOUBLE(a) convert_double16(a)
+#define RT_LANE_FLOAT(a) convert_float16(a)
+#endif
+RT_FN lanef lf_diff_of_products_fp64(lanef a, lanef b, lanef c, lanef d)
+{
+    return RT_LANE_FLOAT(RT_LANE_DOUBLE(a) * RT_LANE_DOUBLE(b) - RT_LANE_DOUBLE(c) * RT_LANE_DOUBLE(d));
+}
+#endif
+RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y, lanef z)
+{
+    return a * (s * x) + b * (s * y) + c * (s * z);
+}
+/* Bit k of the result is lane k's sign bit: one vmovmskps where the compiler targets AVX (PoCL on
+ * x86-64 does; LLVM does not see the generic form below as one), else an AND with the lane's bit
+ * and an OR across the lanes */
+RT_FN int lane_bits(lanei m)
+{
+#if RT_LANES == 8 && defined(__AVX__)
+    return __builtin_ia32_movmskps256(as_float8(m));
+#elif RT_LANES == 4 && defined(__SSE__)
+    return __builtin_ia32_movmskps(as_float4(m));
+#else
+#if RT_LANES == 16
+    int16 w = m & (int16)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768);
+    int8 h = w.lo | w.hi;
+    int4 q = h.lo | h.hi;
+#elif RT_LANES == 8
+    int8 w = m & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 q = w.lo | w.hi;
+#else
+    int4 q = m & (int4)(1, 2, 4, 8);
+#endif
+    int2 p = q.lo | q.hi;
+    return p.x | p.y;
+#endif
+}
+#if RT_LANES == 4
+RT_FN lanei li_of_bits(lanef a) { return as_int4(a); }
+#define lf_join1(a) (a)
+#elif RT_LANES == 8
+RT_FN lanei li_of_bits(lanef a) { return as_int8(a); }
+#define lf_join2(a, b) ((float8)((a), (b)))
+#else
+RT_FN lanei li_of_bits(lanef a) { return as_int16(a); }
+#define lf_join4(a, b, c, d) ((float16)((a), (b), (c), (d)))
+#endif
 /* Lanes 0 .. count - 1 of x, y, z, w from p[first ..] (float4 rows); the others 0. A whole packet
  * (8 lanes) is four 8-float loads and shuffles, not a store per lane followed by a vector load. */
 RT_FN void lanes_load_rows(__global const float4 *p, int first, int count, lanef *x, lanef *y, lanef *z, lanef *w)
@@ -203,5 +329,42 @@ RT_FN void lanes_load_rows(__global const float4 *p, int first, int count, lanef
 }
 #endif
 
+/* The lane vector stored in float4 rows row .. row + RT_LANES / 4 - 1 of buf, read by load, a
+ * loader of rt_memory.h (load_node_data): the loaders stay the only reads of scene buffers. In
+ * OpenCL's global placement, where such a loader is buf[i], one vector load of the same floats
+ * (two float4 loads joined come out as two loads and a shuffle). */
+#if !defined(__CUDACC__) && RT_NODE_MEM == RT_MEM_GLOBAL && !RT_COUNT_WORK
+#define lf_load_rows(load, buf, row) RT_LANE_VLOAD(0, (__global const float *)((buf) + (row)))
+#define lane_load_row_float(load, buf, row, k) (((__global const float *)((buf) + (row)))[(k)])
+/* Start loading the 64-byte line of float4 rows row .. row + 3 into the cache: a traversal asks
+ * for a node it pushed long before it pops it. Clang's builtin, prefetcht0 on x86-64 (OpenCL's own
+ * prefetch() compiles to nothing on PoCL 3.1). */
+#if defined(__AVX__)
+#define lane_prefetch_rows(buf, row) __builtin_prefetch((buf) + (row))
+#endif
+#if RT_LANES == 4
+#define RT_LANE_VLOAD vload4
+#elif RT_LANES == 8
+#define RT_LANE_VLOAD vload8
+#else
+#define RT_LANE_VLOAD vload16
+#endif
+#elif RT_LANES == 4
+#define lf_load_rows(load, buf, row) lf_join1(load(buf, row))
+#elif RT_LANES == 8
+#define lf_load_rows(load, buf, row) lf_join2(load(buf, row), load(buf, (row) + 1))
+#else
+#define lf_load_rows(load, buf, row) lf_join4(load(buf, row), load(buf, (row) + 1), load(buf, (row) + 2), load(buf, (row) + 3))
+#endif
+#define li_load_rows(load, buf, row) li_of_bits(lf_load_rows(load, buf, row))
+/* Lane k of the lane vector at float4 row `row` (k need not be a constant): one scalar load in
+ * OpenCL's global placement, else its float4 through the loader and a select */
+#ifndef lane_prefetch_rows
+#define lane_prefetch_rows(buf, row) ((void)0)
+#endif
+#ifndef lane_load_row_float
+#define lane_load_row_float(load, buf, row, k) rt_float4_get(load(buf, (row) + ((k) >> 2)), (k) & 3)
+#endif
+RT_FN float rt_float4_get(float4 q, int c) { return c == 0 ? q.x : (c == 1 ? q.y : (c == 2 ? q.z : q.w)); }
 
 #endif /* RT_LANES_H */

@@ -27,6 +27,7 @@
 #define RT_TRAVERSAL_ROPES 4       /* ropes, Popov et al. 2007 */
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_TRAVERSAL_BVH_PACKET 6  /* the same BVH, RT_LANES rays a work-item in SIMD lanes: for CPUs */
+#define RT_TRAVERSAL_BVH_WIDE 7    /* the same BVH, RT_LANES children a node in SIMD lanes, one ray: for CPUs */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 #define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */
@@ -97,6 +98,8 @@
 #define rt_barrier() __syncthreads()                          /* a block's threads meet */
 #define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
 #define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
+#define rt_ctz(x) (__ffs(x) - 1)                               /* lowest set bit of x != 0 */
+#define rt_popcount(x) __popc(x)
 typedef unsigned long long rt_u64;
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
@@ -133,6 +136,8 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_barrier() barrier(CLK_LOCAL_MEM_FENCE)
 #define rt_shared_atomic_add(p, v) atomic_add((p), (v))
 #define rt_atomic_inc(p) atomic_inc(p)
+#define rt_ctz(x) (31 - clz((x) & -(x)))                       /* lowest set bit of x != 0 (ctz is OpenCL C 2.0) */
+#define rt_popcount(x) popcount(x)
 typedef ulong rt_u64;
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {

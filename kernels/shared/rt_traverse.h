@@ -27,6 +27,9 @@
 /* trace_rays takes RT_LANES rays a work-item (rt_primary.h); single rays ride in one lane */
 #include "rt_bvh_packet.h"
 #define RT_TRAVERSE_RAY traverse_bvh_packet_ray
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_WIDE
+#include "rt_bvh_wide.h"
+#define RT_TRAVERSE_RAY traverse_bvh_wide
 #elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #ifndef RT_PACKET_KERNELS
 #error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.device.kernels.primary_step)"

@@ -5,13 +5,14 @@ node's boxes are tested on a whole packet, so larger leaves pay), collapsed to `
 children a node (Wald, Benthin & Boulos 2008, "Getting rid of packets": a wider node halves the
 depth; each collapse step opens the inner child with the largest surface area). A packet tests
 each child box and each triangle on all its rays at once, so a node keeps each child's box in two
-rows (lo, hi) beside its ref, and each leaf's triangles follow the nodes as (v0, e1 = v1 - v0,
-e2 = v2 - v0) rows in leaf order: a leaf reads its triangles straight, without the object list's
-indirection, and Möller-Trumbore needs no subtraction for the edges.
+rows (lo, hi) beside its ref, and each leaf's triangles follow the nodes as (v0, v1, v2) rows in leaf order: a leaf reads its
+triangles straight, without the object list's indirection, and exactly the vertices the scalar
+tests read (the watertight test needs them as they are; Möller-Trumbore subtracts them once a
+triangle for the whole packet).
 
 node_data, float4 rows (sync with rt_bvh_packet.h; W = width, RT_PACKET_WIDTH there):
   node i, rows 2 W i + 2 c, 2 W i + 2 c + 1 for child c < W: (lo.xyz, ref), (hi.xyz, 0)
-  triangle rows from 2 W M: (v0.xyz, triangle id), (e1.xyz, 0), (e2.xyz, 0) for each leaf's triangles
+  triangle rows from 2 W M: (v0.xyz, triangle id), (v1.xyz, 0), (v2.xyz, 0) for each leaf's triangles
 A ref >= 0 is an inner node; a leaf is ~((row << 4) | count), its triangles from row ``row``. A node
 fills its children first; an unused slot has ref EMPTY (a leaf of no triangles).
 """
@@ -122,7 +123,7 @@ def packet_node_data(bvh: Bvh, vertices: np.ndarray, faces: np.ndarray, width: i
     tris = out[tri_base:].reshape(len(objects), TRI_ROWS, 4)
     tris[:, 0, :3] = v0
     tris.view(np.int32)[:, 0, 3] = objects.astype(np.int32)
-    tris[:, 1, :3] = v1 - v0                               # float32, as the scalar test computes them
-    tris[:, 2, :3] = v2 - v0
+    tris[:, 1, :3] = v1
+    tris[:, 2, :3] = v2
     # a node pushes all but one of the children it enters, at most width - 1, on each level
     return out, (width - 1) * depth + 1

@@ -22,7 +22,8 @@ def _codes(prefix: str, names) -> dict[str, int]:
 
 # A name is listed here once its kernels exist in both languages. "bvh-packet" is the BVH walked by
 # packets of PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
-TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet"))
+TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet",
+                                      "bvh-wide"))
 INTERSECTIONS = _codes("RT_ISECT_", ("moller", "wald", "plucker", "watertight"))
 NODE_MEMORY = _codes("RT_MEM_", ("global", "texture"))
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)
@@ -179,9 +180,9 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
     }
     if variant.count_work:
         defines["RT_COUNT_WORK"] = 1
-    if variant.traversal in ("bvh", "bvh-packet"):
+    if variant.traversal in ("bvh", "bvh-packet", "bvh-wide"):
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
-    if variant.traversal == "bvh-packet":
+    if variant.traversal in ("bvh-packet", "bvh-wide"):
         defines["RT_LANES"] = PACKET_LANES
         defines["RT_PACKET_WIDTH"] = PACKET_WIDTH
     if variant.ray_memory == "shared":

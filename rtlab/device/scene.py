@@ -16,12 +16,13 @@ import numpy as np
 from ..accel.bvh import load_or_build_bvh
 from ..accel.bvh_stats import traversal_bvh
 from ..accel.bvh_packet import PACKET_BUILD, packet_node_data
+from ..accel.bvh_wide import wide_node_data
 from ..accel.kdtree import KdBuildParams, KdTree
 from ..accel.ropes import RECORD_FLOAT4S, build_ropes
 from ..accel.tri_data import plucker_tri_data, wald_tri_data
 from ..scene.materials import AMBIENT, BACKGROUND
 from ..scene.model import Camera, Scene, scene_fingerprint
-from .kernels import PACKET_WIDTH, SceneFeatures
+from .kernels import PACKET_LANES, PACKET_WIDTH, SceneFeatures
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
 
 DUMMY_F4 = np.zeros((1, 4), np.float32)
@@ -69,9 +70,16 @@ def bvh_packet_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
 
 
+def bvh_wide_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's BVH in the wide single-ray layout (rt_bvh_wide.h); the kd-tree is not used."""
+    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
+    rows, stack = wide_node_data(bvh, scene.vertices, scene.faces, PACKET_LANES)
+    return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
+
+
 # traversal name -> builder(scene, kd_tree) -> AccelArrays; every traversal not listed reads the
 # kd-tree as built (kd_accel)
-ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel}
+ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel, "bvh-wide": bvh_wide_accel}
 # intersection test name -> builder(scene) -> (R F, 4) float32 rows precomputed per triangle; a test
 # not listed reads the vertices and gets a dummy element
 TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.faces),

@@ -1,0 +1,98 @@
+/* rt_intersect_lanes.h - the triangle tests of rt_intersect.h on RT_LANES ray/triangle pairs at once
+ * (rt_lanes.h): the CPU traversals' inner loops. The packet traversal (rt_bvh_packet.h) pairs its
+ * RT_LANES rays with one triangle, the wide BVH (rt_bvh_wide.h) one ray with a block of RT_LANES
+ * triangles; either passes the side that is one value as a splat.
+ *
+ * Each function is the scalar test's arithmetic, expression for expression (rt_lanes.h's helpers
+ * round and contract as the scalar code does), so a lane decides every ray/triangle pair as
+ * intersect_ray_tri_moller or intersect_ray_tri_watertight decides it: every traversal returns the
+ * same triangle and t (tests/test_cpu.py checks against the scalar traversals). What depends on the
+ * closest hit so far (closer_hit's tie rule) stays with the caller.
+ */
+#ifndef RT_INTERSECT_LANES_H
+#define RT_INTERSECT_LANES_H
+#include "rt_intersect.h"
+#include "rt_lanes.h"
+
+/* Moller-Trumbore (intersect_ray_tri_moller) on the lanes: rays o + t d, triangles v0 with edges
+ * e1 = v1 - v0, e2 = v2 - v0. Returns the lanes whose ray crosses the triangle (det != 0, u and v
+ * inside), with u, v and t; the caller applies tmin and the closest hit. */
+RT_FN lanei lanes_moller(lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz, lanef v0x, lanef v0y, lanef v0z,
+                         lanef e1x, lanef e1y, lanef e1z, lanef e2x, lanef e2y, lanef e2z, lanef *u, lanef *v, lanef *t)
+{
+    lanef px = lf_diff_mul(dy, e2z, dz, e2y);
+    lanef py = lf_diff_mul(dz, e2x, dx, e2z);
+    lanef pz = lf_diff_mul(dx, e2y, dy, e2x);
+    lanef det = lf_dot3(e1x, e1y, e1z, px, py, pz);
+    lanef inv_det = lf_div(1.0f, det);
+    lanef sx = lf_sub(ox, v0x), sy = lf_sub(oy, v0y), sz = lf_sub(oz, v0z);
+    *u = lf_mul(lf_dot3(sx, sy, sz, px, py, pz), inv_det);
+    lanef qx = lf_diff_mul(sy, e1z, sz, e1y);
+    lanef qy = lf_diff_mul(sz, e1x, sx, e1z);
+    lanef qz = lf_diff_mul(sx, e1y, sy, e1x);
+    *v = lf_mul(lf_dot3(dx, dy, dz, qx, qy, qz), inv_det);
+    *t = lf_mul(lf_dot3(e2x, e2y, e2z, qx, qy, qz), inv_det);
+    lanef zero = lf_splat(0.0f), one = lf_splat(1.0f);
+    lanei inside = li_and(li_and(lf_le(zero, *u), lf_le(*u, one)), li_and(lf_le(zero, *v), lf_le(lf_add(*u, *v), one)));
+    return li_andnot(inside, lf_eq(det, zero));
+}
+
+/* The per-ray part of Woop et al.'s watertight test (intersect_ray_tri_watertight): the axes
+ * (kx, ky, kz), kz the direction's largest, kx and ky swapped where d[kz] < 0 to keep the winding,
+ * and the shear s = (d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz]) with 1 / d[kz] as make_ray rounds it. */
+typedef struct {
+    int kx, ky, kz;
+    float sx, sy, sz;
+} WatertightAxes;
+
+RT_FN WatertightAxes watertight_axes(float3 d)
+{
+    WatertightAxes w;
+    float ax = rt_abs(d.x), ay = rt_abs(d.y), az = rt_abs(d.z);
+    w.kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    w.kx = w.kz == 2 ? 0 : w.kz + 1;
+    w.ky = w.kx == 2 ? 0 : w.kx + 1;
+    if (get3(d, w.kz) < 0.0f) {
+        int swap = w.kx;
+        w.kx = w.ky;
+        w.ky = swap;
+    }
+    w.sz = 1.0f / get3(d, w.kz);
+    w.sx = get3(d, w.kx) * w.sz;
+    w.sy = get3(d, w.ky) * w.sz;
+    return w;
+}
+
+/* Woop's edge functions on the lanes: a, b, c the triangle's vertices minus the ray origin, in the
+ * ray's axis order (a = (v0 - o)[kx, ky, kz]), sheared by (sx, sy). Where an edge function is
+ * exactly zero all three are recomputed in double, as the scalar test does (RT_HAS_FP64). Returns
+ * the lanes whose ray passes through the triangle (u, v, w of one sign, zeros included, and
+ * det = u + v + w != 0), with u, v, w and det. */
+RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef by, lanef bz, lanef cx, lanef cy,
+                                   lanef cz, lanef sx, lanef sy, lanef *u, lanef *v, lanef *w, lanef *det)
+{
+    lanef ax2 = lf_sub_mul(ax, sx, az), ay2 = lf_sub_mul(ay, sy, az);
+    lanef bx2 = lf_sub_mul(bx, sx, bz), by2 = lf_sub_mul(by, sy, bz);
+    lanef cx2 = lf_sub_mul(cx, sx, cz), cy2 = lf_sub_mul(cy, sy, cz);
+    lanef e0 = lf_diff_of_products_rn(cx2, by2, cy2, bx2);
+    lanef e1 = lf_diff_of_products_rn(ax2, cy2, ay2, cx2);
+    lanef e2 = lf_diff_of_products_rn(bx2, ay2, by2, ax2);
+    lanef zero = lf_splat(0.0f);
+#if RT_HAS_FP64
+    lanei at_edge = li_or(li_or(lf_eq(e0, zero), lf_eq(e1, zero)), lf_eq(e2, zero));
+    if (lane_any(at_edge)) {
+        e0 = lf_select(e0, lf_diff_of_products_fp64(cx2, by2, cy2, bx2), at_edge);
+        e1 = lf_select(e1, lf_diff_of_products_fp64(ax2, cy2, ay2, cx2), at_edge);
+        e2 = lf_select(e2, lf_diff_of_products_fp64(bx2, ay2, by2, ax2), at_edge);
+    }
+#endif
+    lanei negative = li_or(li_or(lf_lt(e0, zero), lf_lt(e1, zero)), lf_lt(e2, zero));
+    lanei positive = li_or(li_or(lf_lt(zero, e0), lf_lt(zero, e1)), lf_lt(zero, e2));
+    *u = e0;
+    *v = e1;
+    *w = e2;
+    *det = lf_add(lf_add(e0, e1), e2);
+    return li_andnot(li_andnot(li_splat(-1), li_and(negative, positive)), lf_eq(*det, zero));
+}
+
+#endif /* RT_INTERSECT_LANES_H */
