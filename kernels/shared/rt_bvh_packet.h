@@ -1,28 +1,26 @@
 /* rt_bvh_packet.h - BVH traversal of a packet of RT_LANES rays in one work-item: the traversal
- * that suits a CPU (Wald, Boulos & Shirley, "Ray tracing deformable scenes using dynamic bounding
- * volume hierarchies", ACM TOG 2007: a packet walks the BVH together, a node is entered when any
- * of its rays hits the node's box).
+ * that suits a CPU for coherent rays (Wald, Boulos & Shirley, "Ray tracing deformable scenes using
+ * dynamic bounding volume hierarchies", ACM TOG 2007: a packet walks the BVH together, a node is
+ * entered when any of its rays hits the node's box).
  *
  * Why a packet on a CPU: PoCL runs a work-group's work-items one after another and can vectorise
  * across them only in straight-line code, which a traversal loop is not. One ray a work-item
  * therefore runs in scalar registers (a quarter or an eighth of an AVX register). Here each box
  * and triangle test runs on all rays of the packet at once in lane vectors (rt_lanes.h), which
  * PoCL's compiler keeps as SIMD instructions; neighbouring camera rays visit nearly the same nodes,
- * so the packet costs little more than one ray. The kernels choose it with
- * RT_TRAVERSAL_BVH_PACKET (rtlab's "bvh-packet"); on a GPU one thread a ray (rt_bvh.h) is the
- * better choice, but the code compiles and runs there too.
+ * so the packet costs little more than one ray. Rays that go their own ways (diffuse bounces) would
+ * make a packet visit the union of their paths: packet_is_coherent tells them apart, and such a
+ * packet's rays go one by one through the wide traversal of the same tree (rt_bvh_wide.h), whose
+ * lanes test a node's children instead (rt_primary.h's trace_packet). The kernels choose this with
+ * RT_TRAVERSAL_BVH_PACKET (rtlab's "bvh-packet"), which also takes rt_bvh_wide.h for single rays
+ * (shadows, reflections); on a GPU one thread a ray (rt_bvh.h) is the better choice, but the code
+ * compiles and runs there too.
  *
- * The BVH is rt_bvh.h's, collapsed to RT_PACKET_WIDTH (W) children a node on the host: a node's
- * children are box-tested one after another on the whole packet, the ones some lane hits entered
- * nearest first (by the smallest entry distance of a lane), the others pushed.
- *
- * Layout in node_data, float4 rows (sync with rtlab/accel/bvh_packet.py), nodes first:
- *   node i, child c < W: rows 2 W i + 2 c, 2 W i + 2 c + 1 = (lo.xyz, ref), (hi.xyz, 0)
- *   then each leaf's triangles, 3 rows each: (v0.xyz, triangle id), (v1.xyz, 0), (v2.xyz, 0)
- * A child ref >= 0 is an inner node; a leaf is ~((row << 4) | count): count triangles from node_data
- * row `row`, so a leaf reads its triangles without the object list's indirection. Used slots come
- * first; an unused one has ref PBVH_EMPTY. The root is node 0 and inner. RT_STACK_SIZE is what a
- * walk down the deepest path can push, (W - 1) x depth + 1 (AccelArrays.stack_size).
+ * The tree is rt_bvh_wide.h's: RT_LANES children a node, their boxes as lane vectors, triangles in
+ * blocks of RT_LANES. A packet reads a child's box and a triangle's vertices as scalars (one lane
+ * of those vectors) and tests them on all its rays; a node's children are box-tested one after
+ * another, the ones some lane hits entered nearest first (by the smallest entry distance of a
+ * lane), the others pushed. Used slots come first, so the first unused one ends a node.
  *
  * Boxes are clipped with min/max, which have no NaN rule, so no lane may make a NaN: the inverse
  * direction is bvh_inverse's (finite), and the slabs are b inv - o inv with o inv padded as rt_bvh.h
@@ -40,18 +38,11 @@
 #ifndef RT_BVH_PACKET_H
 #define RT_BVH_PACKET_H
 #include "rt_bvh.h"
+#include "rt_bvh_wide.h"
 #include "rt_intersect.h"
 #include "rt_intersect_lanes.h"
 #include "rt_lanes.h"
 #include "rt_memory.h"
-
-#define PBVH_LEAF_BITS 4           /* at most 15 triangles a leaf (sync with rtlab/accel/bvh_packet.py) */
-#ifndef RT_PACKET_WIDTH            /* children a node; the loader sets it (rtlab.device.kernels.PACKET_WIDTH) */
-#define RT_PACKET_WIDTH 4
-#endif
-#define PBVH_NODE_ROWS (2 * RT_PACKET_WIDTH)
-#define PBVH_TRI_ROWS 3
-#define PBVH_EMPTY (-1)            /* an unused child slot: a leaf of no triangles */
 
 /* The fused slab form b inv - o inv (rt_bvh.h's RT_BVH_BOX_FMA; the loader sets that for scenes
  * near the origin whose coordinates times 2^64 stay finite, so no lane can make inf - inf) */
@@ -366,21 +357,24 @@ RT_FN lanei packet_tri_lanewise(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *
 RT_FN lanei packet_leaf(RT_SCENE_PARAMS, int leaf, const RayPacket *p, HitPacket *h, lanei live)
 {
     int bits = ~leaf;
-    int row = bits >> PBVH_LEAF_BITS;
-    int count = bits & ((1 << PBVH_LEAF_BITS) - 1);
+    int first = bits >> WBVH_LEAF_BITS;
+    int count = bits & ((1 << WBVH_LEAF_BITS) - 1);
     lanei found = li_splat(0);
-    for (int i = 0; i < count; ++i, row += PBVH_TRI_ROWS) {
-        float4 a = load_node_data(node_data, row);
+    for (int i = 0; i < count; ++i) {
+        /* triangle i is lane i % RT_LANES of the leaf's block i / RT_LANES */
+        int row = first + (i / RT_LANES) * WBVH_BLOCK_ROWS, k = i % RT_LANES;
+        int tri = rt_as_int(wide_lane(row + 9 * WBVH_Q, k));
 #if RT_ISECT == RT_ISECT_MOLLER || RT_ISECT == RT_ISECT_WATERTIGHT
-        float3 v1 = xyz(load_node_data(node_data, row + 1));
-        float3 v2 = xyz(load_node_data(node_data, row + 2));
+        float3 v0 = wide_block_vertex(RT_SCENE_ARGS, row, 0, k);
+        float3 v1 = wide_block_vertex(RT_SCENE_ARGS, row, 1, k);
+        float3 v2 = wide_block_vertex(RT_SCENE_ARGS, row, 2, k);
 #endif
 #if RT_ISECT == RT_ISECT_MOLLER
-        found = li_or(found, packet_tri_moller(p, h, xyz(a), v1, v2, rt_as_int(a.w)));
+        found = li_or(found, packet_tri_moller(p, h, v0, v1, v2, tri));
 #elif RT_ISECT == RT_ISECT_WATERTIGHT
-        found = li_or(found, packet_tri_watertight(p, h, live, xyz(a), v1, v2, rt_as_int(a.w)));
+        found = li_or(found, packet_tri_watertight(p, h, live, v0, v1, v2, tri));
 #else
-        found = li_or(found, packet_tri_lanewise(RT_SCENE_ARGS, p, h, live, rt_as_int(a.w)));
+        found = li_or(found, packet_tri_lanewise(RT_SCENE_ARGS, p, h, live, tri));
 #endif
     }
     return found;
@@ -401,17 +395,17 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
         /* Inner nodes: enter the children some lane hits, the one a lane enters first first; the
          * others go on the stack, nearer ones on top */
         while (ref >= 0) {
-            int base = PBVH_NODE_ROWS * ref;
-            int hit_ref[RT_PACKET_WIDTH];
-            float hit_t[RT_PACKET_WIDTH];
+            int base = WBVH_NODE_ROWS * ref;
+            int hit_ref[RT_LANES];
+            float hit_t[RT_LANES];
             int n = 0;
-#pragma unroll
-            for (int c = 0; c < RT_PACKET_WIDTH; ++c) {
-                float4 lo = load_node_data(node_data, base + 2 * c);
-                float4 hi = load_node_data(node_data, base + 2 * c + 1);
-                int child = rt_as_int(lo.w);
-                if (c >= 2 && child == PBVH_EMPTY)
+            for (int c = 0; c < RT_LANES; ++c) {
+                int child = rt_as_int(wide_lane(base + 6 * WBVH_Q, c));
+                if (child == WBVH_EMPTY)
                     break;
+                float4 lo = f4(wide_lane(base, c), wide_lane(base + 2 * WBVH_Q, c), wide_lane(base + 4 * WBVH_Q, c), 0.0f);
+                float4 hi = f4(wide_lane(base + WBVH_Q, c), wide_lane(base + 3 * WBVH_Q, c),
+                               wide_lane(base + 5 * WBVH_Q, c), 0.0f);
                 lanef t_near;
                 lanei m = packet_hits_box(p, t_cut, lo, hi, &t_near);
                 if (!lane_any(m))
@@ -452,22 +446,29 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
     }
 }
 
-/* One ray through the packet traversal (lane 0; the others empty): what trace_closest and
- * trace_any use with this traversal (shading, shadow and secondary rays). *hit holds the hit so
- * far; it changes only where the traversal finds a nearer one. */
-RT_FN void traverse_bvh_packet_ray(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
-                                   int any_hit)
+/* Whether the packet's live rays are alike enough to walk the tree together: directions of one
+ * octant (the sign of each component) and within RT_PACKET_CONE of each other (the cosine of the
+ * angle to the first live lane's direction). Camera rays of neighbouring pixels are; diffuse
+ * bounces, which share their origin's neighbourhood but not their direction, are not. */
+#ifndef RT_PACKET_CONE
+#define RT_PACKET_CONE 0.9f
+#endif
+RT_FN int packet_is_coherent(const RayPacket *p, lanei live)
 {
-    Ray cut = *ray;
-    cut.tmax = hit->t;
-    RayPacket p;
-    HitPacket h;
-    lanei live = packet_of_rays(&p, &h, &cut, 1);
-    if (!lane_any(live))
-        return;
-    traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, any_hit);
-    if (li_get(h.tri, 0) >= 0)
-        packet_get_hit(&h, 0, hit);
+    int bits = lane_bits(live);
+    if (bits == 0)
+        return 1;
+    int k = rt_ctz(bits);
+    float x = lf_get(p->dx, k), y = lf_get(p->dy, k), z = lf_get(p->dz, k);
+    lanef zero = lf_splat(0.0f);
+    lanei sx = lf_lt(p->dx, zero), sy = lf_lt(p->dy, zero), sz = lf_lt(p->dz, zero);
+    lanei same = li_and(li_and(li_eq(sx, li_splat(x < 0.0f ? -1 : 0)), li_eq(sy, li_splat(y < 0.0f ? -1 : 0))),
+                        li_eq(sz, li_splat(z < 0.0f ? -1 : 0)));
+    /* d . d0 >= cone |d| |d0|, squared (both sides are >= 0 where the signs agree) */
+    lanef dot = lf_dot3s(p->dx, p->dy, p->dz, x, y, z);
+    lanef dd = lf_dot3(p->dx, p->dy, p->dz, p->dx, p->dy, p->dz);
+    lanei close = lf_le(lf_mul(lf_splat(RT_PACKET_CONE * RT_PACKET_CONE * (x * x + y * y + z * z)), dd), lf_mul(dot, dot));
+    return lane_bits(li_and(li_and(same, close), live)) == bits;
 }
 
 #endif /* RT_BVH_PACKET_H */

@@ -41,7 +41,8 @@ RT_FN Hit trace_one_loop(RT_SCENE_PARAMS, float4 origin, float4 direction, int n
 
 #if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
 /* The work of trace_rays with the packet traversal: rays first .. first + RT_LANES - 1 (those
- * below n_rays) traced as one packet, each hit refined and written as trace_one's would be. */
+ * below n_rays) traced as one packet where they are coherent (packet_is_coherent), else one by one
+ * through the wide traversal (trace_one); each hit refined and written as trace_one's would be. */
 RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBAL const float4 *origins,
                         RT_GLOBAL const float4 *directions, RT_GLOBAL float4 *hits, int first, int n_rays)
 {
@@ -52,6 +53,11 @@ RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBA
     RayPacket p;
     HitPacket h;
     lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);   /* lanes past count: d = 0 */
+    if (!packet_is_coherent(&p, live)) {
+        for (int k = 0; k < count; ++k)
+            hits[first + k] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[first + k], directions[first + k]));
+        return;
+    }
     if (lane_any(live))
         traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
     /* Unrolled, so that each lane is read by a constant index (an extract), not through memory */

@@ -24,9 +24,10 @@
 #include "rt_bvh.h"
 #define RT_TRAVERSE_RAY traverse_bvh
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
-/* trace_rays takes RT_LANES rays a work-item (rt_primary.h); single rays ride in one lane */
+/* trace_rays and render_primary take RT_LANES rays a work-item (rt_primary.h); single rays (shadows,
+ * reflections) go through the wide traversal of the same tree */
 #include "rt_bvh_packet.h"
-#define RT_TRAVERSE_RAY traverse_bvh_packet_ray
+#define RT_TRAVERSE_RAY traverse_bvh_wide
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_WIDE
 #include "rt_bvh_wide.h"
 #define RT_TRAVERSE_RAY traverse_bvh_wide

@@ -1,17 +1,24 @@
-"""The BVH in the layout of the wide single-ray traversal (kernels/shared/rt_bvh_wide.h): one ray a
-work-item, a node's children box-tested in SIMD lanes and a leaf's triangles in blocks of as many.
+"""The CPU's BVH: the layout the wide single-ray traversal (kernels/shared/rt_bvh_wide.h) and the
+packet traversal (rt_bvh_packet.h) both read, so one upload serves coherent and incoherent rays.
 
-The tree is rtlab.accel.bvh's binned-SAH BVH (same builder and disk cache), collapsed to ``lanes``
-children a node as the packet layout collapses it (rtlab.accel.bvh_packet._collapse: each step opens
-the inner child with the largest surface area). A node keeps each coordinate of its children's boxes
-as one lane vector, so one ray tests all of them with a few vector instructions; a leaf's triangles
-follow the nodes as blocks of ``lanes`` triangles, each coordinate of each vertex one lane vector, so
-a block is one lane test. The vertices are stored as they are (not as edges): the watertight test
-reads v0, v1 and v2 exactly, and Moller-Trumbore subtracts them as the scalar test does.
+The tree is rtlab.accel.bvh's binned-SAH BVH (same builder and disk cache, CPU_BUILD's costs), with
+spatial splits where they lower its SAH cost as for the GPU's "bvh" traversal (cpu_bvh), then:
+  * every subtree of at most ``lanes`` triangles made one leaf (_merge_small_subtrees): a leaf's
+    triangles are tested ``lanes`` at a time, so such a subtree costs one block test as a leaf and at
+    least a node test and a block test as a subtree;
+  * collapsed to ``lanes`` children a node (Wald, Benthin & Boulos 2008, "Getting rid of packets":
+    each collapse step opens the inner child with the largest surface area; a wider node cuts the
+    depth by about log2(lanes)).
+A node keeps each coordinate of its children's boxes as one lane vector, so one ray tests all of
+them with a few vector instructions (a packet reads one lane of each); a leaf's triangles follow the
+nodes as blocks of ``lanes`` triangles, each coordinate of each vertex one lane vector, so a block is
+one lane test for a ray (and a packet reads triangle by triangle). The vertices are stored as they
+are, not as edges: the watertight test reads v0, v1 and v2 exactly, and Moller-Trumbore subtracts
+them as the scalar test does.
 
 node_data, float4 rows (sync with rt_bvh_wide.h; L = lanes, Q = L / 4 rows a lane vector):
   node i, rows 7 Q i ..: lane vectors lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, ref (int bits) of its
-      children; an unused slot: lo = +inf, hi = -inf, ref EMPTY
+      children, used slots first; an unused slot: lo = +inf, hi = -inf, ref EMPTY
   then the blocks, 10 Q rows each: lane vectors v0.x, v0.y, v0.z, v1.x, ..., v2.z, triangle id (int
       bits); a leaf's last block is filled up with its first triangle
 A ref >= 0 is an inner node; a leaf is ~((row << LEAF_BITS) | count), count triangles in
@@ -24,14 +31,83 @@ from numba import njit
 
 from ..errors import SceneError
 from ..kernel_constants import kernel_constant
-from .bvh import Bvh
-from .bvh_packet import _collapse
+from .bvh import Bvh, BvhBuildParams, load_or_build_bvh
 
 LEAF_BITS = int(kernel_constant("WBVH_LEAF_BITS"))
 EMPTY = int(kernel_constant("WBVH_EMPTY"))
 NODE_VECTORS = 7                 # lane vectors a node: lo, hi of each axis, refs
 BLOCK_VECTORS = 10               # lane vectors a block: 3 vertices x 3 axes, ids
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1
+# SAH costs of the binary tree before it is collapsed: a binary node (two box tests) costs two
+# triangle tests, leaves may hold up to 15 triangles (tuned for packets on the issue 15 views: 2-8 %
+# more Mrays per CPU-second than the GPU BVH's 1.0 and 8)
+CPU_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0)
+# ... and the same with spatial splits (SBVH, as the GPU BVH's SPLIT_BUILD), kept where its SAH cost
+# is SPLIT_MIN_GAIN lower (rtlab.accel.bvh_stats)
+CPU_SPLIT_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0, spatial_alpha=1e-5)
+
+
+def cpu_bvh(vertices, faces, cache_dir=None) -> Bvh:
+    """The binary BVH the CPU traversals read, before its layout (wide_node_data): both builds from
+    the on-disk cache or built, the spatial-split one kept where its SAH cost is SPLIT_MIN_GAIN
+    lower, as the GPU's "bvh" traversal chooses (rtlab.accel.bvh_stats.traversal_bvh)."""
+    from .bvh_stats import SPLIT_MIN_GAIN, sah_cost
+    plain, _ = load_or_build_bvh(vertices, faces, CPU_BUILD, cache_dir)
+    split, _ = load_or_build_bvh(vertices, faces, CPU_SPLIT_BUILD, cache_dir)
+    return split if sah_cost(split) <= (1.0 - SPLIT_MIN_GAIN) * sah_cost(plain) else plain
+
+
+@njit(cache=True)
+def _collapse(child_lo, child_hi, child_ref, width):
+    """The binary BVH with up to ``width`` children a node: (lo, hi, ref) per node and slot, with
+    leaf refs as the binary BVH encodes them, and the number of nodes on the longest root-to-leaf
+    path. Children of a node get consecutive indices; nodes are laid out depth first."""
+    m2 = child_ref.shape[0]
+    out_lo = np.zeros((m2, width, 3), np.float32)
+    out_hi = np.zeros((m2, width, 3), np.float32)
+    out_ref = np.full((m2, width), EMPTY, np.int32)
+    lo = np.empty((width, 3), np.float32)
+    hi = np.empty((width, 3), np.float32)
+    ref = np.empty(width, np.int64)
+    work = np.empty((m2 + 1, 3), np.int64)       # (binary node, collapsed node, depth)
+    work[0, 0], work[0, 1], work[0, 2] = 0, 0, 1
+    top, n_out, depth = 1, 1, 1
+    while top > 0:
+        top -= 1
+        src, dst, d = work[top, 0], work[top, 1], work[top, 2]
+        depth = max(depth, d)
+        for c in range(2):
+            lo[c], hi[c], ref[c] = child_lo[src, c], child_hi[src, c], child_ref[src, c]
+        k = 2
+        while k < width:
+            best, best_area = -1, -1.0
+            for i in range(k):
+                if ref[i] >= 0:
+                    e = hi[i] - lo[i]
+                    area = e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+                    if area > best_area:
+                        best, best_area = i, area
+            if best < 0:
+                break
+            r = ref[best]
+            lo[best], hi[best], ref[best] = child_lo[r, 0], child_hi[r, 0], child_ref[r, 0]
+            lo[k], hi[k], ref[k] = child_lo[r, 1], child_hi[r, 1], child_ref[r, 1]
+            k += 1
+        first_child = n_out
+        for i in range(k):
+            out_lo[dst, i], out_hi[dst, i] = lo[i], hi[i]
+            if ref[i] >= 0:
+                out_ref[dst, i] = n_out
+                n_out += 1
+            else:
+                out_ref[dst, i] = ref[i]
+        # Push in reverse, so that the first inner child is laid out (and its children numbered) next
+        for i in range(k - 1, -1, -1):
+            if ref[i] >= 0:
+                work[top, 0], work[top, 1], work[top, 2] = ref[i], out_ref[dst, i], d + 1
+                top += 1
+        assert n_out - first_child <= width
+    return out_lo[:n_out].copy(), out_hi[:n_out].copy(), out_ref[:n_out].copy(), depth
 
 
 def node_rows(lanes: int) -> int:

@@ -20,8 +20,11 @@ def _codes(prefix: str, names) -> dict[str, int]:
     return {name: int(kernel_constant(prefix + name.upper().replace("-", "_"))) for name in names}
 
 
-# A name is listed here once its kernels exist in both languages. "bvh-packet" is the BVH walked by
-# packets of PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
+# A name is listed here once its kernels exist in both languages. The CPU's traversals read one wide
+# BVH (rt_bvh_wide.h, PACKET_LANES children a node): "bvh-wide" walks it one ray a work-item, a
+# node's children tested in SIMD lanes; "bvh-packet" walks it with packets of PACKET_LANES rays a
+# work-item in SIMD lanes (rt_bvh_packet.h) where a packet's rays are coherent, and ray by ray as
+# "bvh-wide" where they are not.
 TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet",
                                       "bvh-wide"))
 INTERSECTIONS = _codes("RT_ISECT_", ("moller", "wald", "plucker", "watertight"))
@@ -32,8 +35,7 @@ RAY_MEMORY = _codes("RT_MEM_", ("registers", "shared", "indexed"))
 RAY_ORDERS = _codes("RT_ORDER_", ("rows", "morton"))
 MEMORY_STEP = "01_memory"
 TRACE_THREADS = 128       # threads a block of trace_rays (rtlab.device.tracing's launch)
-PACKET_LANES = int(kernel_constant("RT_LANES"))           # rays a work-item of bvh-packet: one AVX register
-PACKET_WIDTH = int(kernel_constant("RT_PACKET_WIDTH"))    # children a node of its BVH (rtlab/accel/bvh_packet.py)
+PACKET_LANES = int(kernel_constant("RT_LANES"))   # rays a packet, children a wide node: one AVX register
 
 DEFAULT_BLOCK = (32, 4)   # threads in x (along a row) by y; the paper's Fig. 4 sweeps it
 
@@ -184,7 +186,6 @@ def build_defines(variant: Variant, features: SceneFeatures, **extra) -> dict[st
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if variant.traversal in ("bvh-packet", "bvh-wide"):
         defines["RT_LANES"] = PACKET_LANES
-        defines["RT_PACKET_WIDTH"] = PACKET_WIDTH
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block / a trace_rays block
         defines["RT_BLOCK_THREADS"] = variant.block[0] * variant.block[1]

@@ -15,14 +15,13 @@ import numpy as np
 
 from ..accel.bvh import load_or_build_bvh
 from ..accel.bvh_stats import traversal_bvh
-from ..accel.bvh_packet import PACKET_BUILD, packet_node_data
-from ..accel.bvh_wide import wide_node_data
+from ..accel.bvh_wide import cpu_bvh, wide_node_data
 from ..accel.kdtree import KdBuildParams, KdTree
 from ..accel.ropes import RECORD_FLOAT4S, build_ropes
 from ..accel.tri_data import plucker_tri_data, wald_tri_data
 from ..scene.materials import AMBIENT, BACKGROUND
 from ..scene.model import Camera, Scene, scene_fingerprint
-from .kernels import PACKET_LANES, PACKET_WIDTH, SceneFeatures
+from .kernels import PACKET_LANES, SceneFeatures
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
 
 DUMMY_F4 = np.zeros((1, 4), np.float32)
@@ -63,23 +62,25 @@ def bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
 
 
-def bvh_packet_accel(scene: Scene, tree: KdTree) -> AccelArrays:
-    """The scene's BVH in the packet layout (rt_bvh_packet.h); the kd-tree is not used."""
-    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
-    rows, stack = packet_node_data(bvh, scene.vertices, scene.faces, PACKET_WIDTH)
-    return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
-
-
-def bvh_wide_accel(scene: Scene, tree: KdTree) -> AccelArrays:
-    """The scene's BVH in the wide single-ray layout (rt_bvh_wide.h); the kd-tree is not used."""
-    bvh, _ = load_or_build_bvh(scene.vertices, scene.faces, PACKET_BUILD)
+def cpu_bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's BVH in the CPU traversals' wide layout (rt_bvh_wide.h), which "bvh-packet" and
+    "bvh-wide" both read; the kd-tree is not used."""
+    bvh = cpu_bvh(scene.vertices, scene.faces)
     rows, stack = wide_node_data(bvh, scene.vertices, scene.faces, PACKET_LANES)
     return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
 
 
-# traversal name -> builder(scene, kd_tree) -> AccelArrays; every traversal not listed reads the
-# kd-tree as built (kd_accel)
-ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel, "bvh-wide": bvh_wide_accel}
+# family -> builder(scene, kd_tree) -> AccelArrays; a traversal's family is its name but where
+# ACCEL_FAMILIES names another (traversals that read one structure share its upload); every
+# traversal not listed reads the kd-tree as built (kd_accel)
+ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "cpu-bvh": cpu_bvh_accel}
+ACCEL_FAMILIES = {"bvh-packet": "cpu-bvh", "bvh-wide": "cpu-bvh"}
+
+
+def accel_family(traversal: str) -> str:
+    """The acceleration structure ``traversal`` reads: an ACCEL_BUILDERS key, or "kd"."""
+    family = ACCEL_FAMILIES.get(traversal, traversal)
+    return family if family in ACCEL_BUILDERS else "kd"
 # intersection test name -> builder(scene) -> (R F, 4) float32 rows precomputed per triangle; a test
 # not listed reads the vertices and gets a dummy element
 TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.faces),
@@ -102,7 +103,7 @@ def host_scene_data(scene: Scene, variants) -> dict:
     fingerprint = scene_fingerprint(scene)
     accel, tri_data = {}, {}
     for v in variants:
-        family = v.traversal if v.traversal in ACCEL_BUILDERS else "kd"
+        family = accel_family(v.traversal)
         if family not in accel:
             accel[family] = ACCEL_BUILDERS.get(family, kd_accel)(scene, tree)
         builder = TRI_DATA_BUILDERS.get(v.intersection)
@@ -251,7 +252,7 @@ class DeviceScene:
         return DeviceArray(backend.to_device(array), len(array))
 
     def _accel(self, traversal: str):
-        family = traversal if traversal in ACCEL_BUILDERS else "kd"
+        family = accel_family(traversal)
         if family not in self.accel:
             arrays = _given_accel.get((self.fingerprint, family)) if _given_accel else None
             if arrays is None:
