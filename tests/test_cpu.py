@@ -15,7 +15,7 @@ import pytest
 
 import rtlab
 from rtlab.accel.bvh import LEAF_BITS, build_bvh
-from rtlab.accel.bvh_packet import EMPTY, TRI_ROWS, node_rows, packet_node_data
+from rtlab.accel.bvh_wide import EMPTY, block_rows, node_rows, wide_node_data
 from rtlab.device.kernels import PACKET_LANES, SceneFeatures, Variant, build_defines, primary_step, rays_per_work_item
 from rtlab.device.rendering import render
 from rtlab.device.tracing import trace
@@ -122,55 +122,67 @@ def test_render_any_width_and_the_single_ray_path(backend, default_scene):
     assert same.mean() > 0.99, f"{(~same).sum()} pixels differ between bvh and bvh-packet shadows"
 
 
-@pytest.mark.parametrize("width", [2, 4, 8])
-def test_packet_layout_matches_the_mesh(width):
-    """Nodes of up to `width` children, used slots first; each child box holds the triangles below
-    it; leaves: rows (v0, v1, v2, id) of the mesh's own triangles, every usable triangle
-    once; the stack holds what a walk down the deepest path pushes (checked from the mesh and the
-    rows, not from the builder)."""
+@pytest.mark.parametrize("lanes", [4, 8])
+def test_wide_layout_matches_the_mesh(lanes):
+    """The CPU BVH's layout, checked against the mesh and not the builder: nodes of up to `lanes`
+    children, used slots first, unused ones inverted boxes; each child box holds the triangles below
+    it; no inner child holds as few triangles as one block (those are leaves); leaves: blocks of the
+    mesh's own vertices and ids, the last block filled up with the leaf's first triangle, every usable
+    triangle once; the stack holds what a walk down the deepest path pushes."""
     scene = rtlab.load_scene("default", size=16)
     v, f = scene.vertices, scene.faces
     bvh = build_bvh(v, f)
-    rows, stack = packet_node_data(bvh, v, f, width)
+    rows, stack = wide_node_data(bvh, v, f, lanes)
     ints = rows.view(np.int32)
-    per_node = node_rows(width)
-    m, rest = divmod(len(rows) - TRI_ROWS * len(bvh.objects), per_node)
-    assert rest == 0 and m >= 1
+    q, per_node, per_block = lanes // 4, node_rows(lanes), block_rows(lanes)
+    vec = lambda row, k: rows[row:row + q].reshape(-1)[k]                   # lane k of a lane vector
+    ivec = lambda row, k: int(ints[row:row + q].reshape(-1)[k])
     seen = np.zeros(len(f), np.int64)
 
     def children(node):
-        refs = [int(ints[per_node * node + 2 * c, 3]) for c in range(width)]
+        base = per_node * node
+        refs = [ivec(base + 6 * q, c) for c in range(lanes)]
         used = [r != EMPTY for r in refs]
         assert all(used[:2]) and used == sorted(used, reverse=True), f"node {node}: slots {refs}"
+        for c in range(lanes):
+            if not used[c]:
+                assert all(vec(base + 2 * a * q, c) == np.inf and vec(base + (2 * a + 1) * q, c) == -np.inf
+                           for a in range(3))
         return [(c, r) for c, r in enumerate(refs) if r != EMPTY]
 
     def walk(ref):
         """(triangles below ref, collapsed nodes on its longest path)"""
         if ref >= 0:
-            parts = [walk(r) for _, r in children(ref)]
-            for (c, r), (tris, _) in zip(children(ref), parts):
+            kids = children(ref)
+            parts = [walk(r) for _, r in kids]
+            for (c, r), (tris, _) in zip(kids, parts):
                 corners = v[f[tris]].reshape(-1, 3)
-                box = rows[per_node * ref + 2 * c: per_node * ref + 2 * c + 2, :3]
-                assert np.all(box[0] <= corners.min(0)) and np.all(box[1] >= corners.max(0))
+                base = per_node * ref
+                lo = np.array([vec(base + 2 * a * q, c) for a in range(3)])
+                hi = np.array([vec(base + (2 * a + 1) * q, c) for a in range(3)])
+                assert np.all(lo <= corners.min(0)) and np.all(hi >= corners.max(0))
+                assert r < 0 or len(tris) > lanes, f"an inner child of {len(tris)} triangles"
             return np.concatenate([t for t, _ in parts]), 1 + max(d for _, d in parts)
         bits = ~ref
         first, count = bits >> LEAF_BITS, bits & ((1 << LEAF_BITS) - 1)
-        assert 1 <= count and first >= per_node * m and (first - per_node * m) % TRI_ROWS == 0
+        assert 1 <= count <= (1 << LEAF_BITS) - 1
         ids = []
-        for r in range(first, first + TRI_ROWS * count, TRI_ROWS):
-            tri = int(ints[r, 3])
-            v0, v1, v2 = v[f[tri]]
-            assert np.array_equal(rows[r, :3], v0)
-            assert np.array_equal(rows[r + 1, :3], v1) and np.array_equal(rows[r + 2, :3], v2)
-            ids.append(tri)
+        for i in range(-(-count // lanes) * lanes):
+            row, k = first + (i // lanes) * per_block, i % lanes
+            tri = ivec(row + 9 * q, k)
+            corners = np.array([[vec(row + (3 * j + a) * q, k) for a in range(3)] for j in range(3)])
+            assert np.array_equal(corners, v[f[tri]])
+            if i < count:
+                ids.append(tri)
+            else:
+                assert tri == ids[0], "a block is filled up with the leaf's first triangle"
         return np.array(ids, np.int64), 0
 
     tris, depth = walk(0)
     np.add.at(seen, tris, 1)
     assert np.all(seen == 1)
-    assert stack >= (width - 1) * depth + 1
-    if width > 2:
-        assert depth < build_bvh(v, f).depth, "collapsing did not make the tree shallower"
+    assert stack >= (lanes - 1) * depth + 1
+    assert depth < build_bvh(v, f).depth, "collapsing did not make the tree shallower"
 
 
 def test_loader_shapes_and_refusals():

@@ -63,16 +63,16 @@ RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBA
     /* Unrolled, so that each lane is read by a constant index (an extract), not through memory */
 #pragma unroll
     for (int k = 0; k < RT_LANES; ++k) {
-        if (k >= count)
-            break;
-        Hit hit = make_miss(lf_get(tmax, k));
-        if (li_get(live, k)) {
-            packet_get_hit(&h, k, &hit);
-            Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
-                               f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
-            refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+        if (k < count) {
+            Hit hit = make_miss(lf_get(tmax, k));
+            if (li_get(live, k)) {
+                packet_get_hit(&h, k, &hit);
+                Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
+                                   f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
+                refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+            }
+            hits[first + k] = pack_hit(hit);
         }
-        hits[first + k] = pack_hit(hit);
     }
 }
 #endif
@@ -116,18 +116,18 @@ RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONS
         traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
 #pragma unroll
     for (int k = 0; k < RT_LANES; ++k) {
-        if (k >= count)
-            break;
-        Hit hit = make_miss(rays[k].tmax);
-        if (li_get(live, k)) {
-            packet_get_hit(&h, k, &hit);
-            refine_hit_t(RT_SCENE_ARGS, &rays[k], &hit);
-        }
-        int i = y * frame->width + x0 + k;
-        pixels[i] = pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &rays[k], &hit));
+        if (k < count) {
+            Hit hit = make_miss(rays[k].tmax);
+            if (li_get(live, k)) {
+                packet_get_hit(&h, k, &hit);
+                refine_hit_t(RT_SCENE_ARGS, &rays[k], &hit);
+            }
+            int i = y * frame->width + x0 + k;
+            pixels[i] = pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &rays[k], &hit));
 #if RT_WRITE_HITS
-        hits[i] = pack_hit(hit);
+            hits[i] = pack_hit(hit);
 #endif
+        }
     }
 }
 #endif

@@ -11,8 +11,12 @@ OpenCL kernels take ``__constant`` pointer arguments, last, in the order the lau
 from __future__ import annotations
 
 import math
+import os
 import re
+import sys
+import tempfile
 from abc import ABC, abstractmethod
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -147,6 +151,43 @@ def read_source(path) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+def verbose() -> bool:
+    """Whether compiler output is shown: $RTLAB_VERBOSE set (and not 0), as `rtlab --verbose` sets it."""
+    return os.environ.get("RTLAB_VERBOSE", "").strip() not in ("", "0")
+
+
+@contextmanager
+def captured_stderr():
+    """What the process writes to file descriptor 2 inside the block, collected into the list it
+    yields (one string, after the block). Compilers that run inside the process (PoCL's clang and
+    LLVM) print their diagnostics there themselves ("1 warning generated."), past Python's
+    sys.stderr; they belong in the build log, not on the user's terminal."""
+    out: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):        # no file descriptor 2 (an embedding host): nothing to catch
+        yield out
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            out.append(tmp.read().decode(errors="replace"))
+
+
+def report_build_log(path, defines: dict, log: str) -> None:
+    """A successful build's compiler output (warnings, remarks) on stderr when verbose(); kept
+    quiet otherwise. A failed build puts its log in the error instead (format_build_error)."""
+    if log.strip() and verbose():
+        defs = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()))
+        print(f"rtlab: build log of {path} ({defs}):\n{log.rstrip()}", file=sys.stderr)
 
 
 def format_build_error(path, defines: dict, log: str) -> str:

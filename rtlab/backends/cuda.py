@@ -5,6 +5,7 @@ pycuda is imported only here, lazily, so every other part of rtlab works without
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import numpy as np
 from ..errors import BackendError, KernelBuildError
 from ..paths import include_dirs
 from .base import (CUDA_PRECISION_OPTIONS, Backend, KernelResources, Program, Texture, format_build_error, read_source,
-                   round_up)
+                   report_build_log, round_up)
 from .occupancy import SmLimits, cuda_occupancy
 
 
@@ -209,8 +210,14 @@ class CudaBackend(Backend):
         source = f'#line 1 "{path}"\n{text}'
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())] + list(options)
         try:
-            module = SourceModule(source, options=flags, include_dirs=[*(str(d) for d in include_dirs(path)), str(Path(path).parent)],
-                                  no_extern_c=True, arch=self.arch)
+            # pycuda passes nvcc's messages on a successful build as a Python warning: into the
+            # build log (shown on --verbose), not onto the user's terminal
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always")
+                module = SourceModule(source, options=flags, include_dirs=[*(str(d) for d in include_dirs(path)),
+                                                                           str(Path(path).parent)],
+                                      no_extern_c=True, arch=self.arch)
+            report_build_log(path, defines, "\n".join(str(w.message) for w in said))
         except drv.CompileError as e:
             log = e.stderr or str(e)
             if isinstance(log, bytes):

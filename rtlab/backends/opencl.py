@@ -11,7 +11,8 @@ import numpy as np
 
 from ..errors import BackendError, KernelBuildError
 from ..paths import include_dirs
-from .base import Backend, KernelResources, Program, Texture, format_build_error, read_source, round_up
+from .base import (Backend, KernelResources, Program, Texture, captured_stderr, format_build_error, read_source,
+                   report_build_log, round_up)
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
              "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
@@ -88,6 +89,7 @@ class OpenCLProgram(Program):
         self._program = program
         self._kernels: dict = {}
         self._constants: dict = {}
+        self._launched: set = set()      # (kernel, block) shapes launched once
         self.build_log = build_log
 
     def kernel(self, name: str):
@@ -113,8 +115,21 @@ class OpenCLProgram(Program):
             raise KernelBuildError(f"constant {e} was not set before launching {kernel}") from None
         if self.backend.prebuilt_only:
             self.backend.prebuilt.ensure(self, kernel, tuple(block))
-        event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
-        event.wait()
+        shape = (kernel, tuple(block))
+        if shape in self._launched:
+            event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
+            event.wait()
+        else:
+            # PoCL compiles a kernel's machine code for a work-group shape at its first launch:
+            # what its compiler prints then joins the build log too
+            with captured_stderr() as printed:
+                event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
+                event.wait()
+            self._launched.add(shape)
+            text = "".join(printed).strip()
+            if text:
+                self.build_log = f"{self.build_log}\n{text}".strip()
+                report_build_log(self.path, self.defines, text)
         return (event.profile.end - event.profile.start) * 1e-6
 
     def resources(self, kernel, block=None):
@@ -196,16 +211,20 @@ class OpenCLBackend(Backend):
         extra = os.environ.get("RTLAB_CL_OPTIONS")
         if extra:
             flags += extra.split()
+        # The compiler's own prints (PoCL's clang writes "1 warning generated." to the process's
+        # stderr) go into the build log: shown in the error of a failed build, else on --verbose
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), captured_stderr() as printed:
                 warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
                 program = cl.Program(self.context, source).build(options=flags)
         except cl.RuntimeError as e:
-            raise KernelBuildError(format_build_error(path, defines, str(e))) from None
+            raise KernelBuildError(format_build_error(path, defines, str(e) + "\n" + "".join(printed))) from None
         try:
             log = program.get_build_info(self.device, cl.program_build_info.LOG) or ""
         except cl.Error:
             log = ""
+        log = "\n".join(part for part in (log.strip(), "".join(printed).strip()) if part)
+        report_build_log(path, defines, log)
         prog = OpenCLProgram(self, Path(path), defines, program, log)
         self._programs[key] = prog
         return prog
