@@ -22,15 +22,19 @@
  * another, the ones some lane hits entered nearest first (by the smallest entry distance of a
  * lane), the others pushed. Used slots come first, so the first unused one ends a node.
  *
- * Boxes are clipped with min/max, which have no NaN rule, so no lane may make a NaN: the inverse
- * direction is bvh_inverse's (finite), and the slabs are b inv - o inv with o inv padded as rt_bvh.h
- * pads it where the loader allows that fused form (RT_BVH_BOX_FMA: scenes near the origin), else
- * (b - o) inv; lanes without a ray are parked (RayPacket). A lane whose direction has no component
- * along an axis is decided by whether it lies inside the slab (clip_slab's fmin/fmax rule for the
- * 0 * inf of a ray in a box's plane). With RT_CONSERVATIVE the exact form takes the exact 1/d, and
- * the far distance is widened by its rounding bound RT_T_PAD (Ize 2013) in either form, as
- * clip_entering_ray_box and rt_bvh.h do. Boxes are culled against t_cull of each lane's closest hit
- * (lf_t_cull), the pad every traversal uses, so a tie at equal t is kept.
+ * A packet walks the tree only when its rays are coherent (packet_is_coherent), so every lane's
+ * direction has the same signs: each slab's near and far plane are the same for all lanes and are
+ * read as such (one fused multiply-add a plane and lane, no min/max), as the wide traversal reads
+ * them. That fused form is rt_bvh.h's, lane by lane: b inv - o inv with inv = bvh_inverse(d) and
+ * o inv padded by its rounding bound, a zero component's by the ray's length in the scene box too
+ * (RT_BVH_BOX_FMA: scenes near the origin). Elsewhere the slabs are (b - o) inv with min/max, which
+ * have no NaN rule, so no lane may make a NaN: the inverse is finite but for the exact 1/d of
+ * RT_CONSERVATIVE, and a lane whose direction has no component along an axis is decided by whether
+ * it lies inside the slab (clip_slab's fmin/fmax rule for the 0 * inf of a ray in a box's plane).
+ * With RT_CONSERVATIVE the far distance is widened by its rounding bound RT_T_PAD (Ize 2013) in
+ * either form, as clip_entering_ray_box and rt_bvh.h do. Lanes without a ray are parked
+ * (RayPacket). Boxes are culled against t_cull of each lane's closest hit (lf_t_cull), the pad
+ * every traversal uses, so a tie at equal t is kept.
  * Moller-Trumbore and the watertight test run on the lanes (rt_intersect_lanes.h, the scalar tests'
  * arithmetic: the same ids and t as every other traversal); Wald's and Plucker's tests run lane by
  * lane through the shared intersect_tri.
@@ -53,15 +57,18 @@
 #endif
 
 /* The rays of a packet. A lane without a ray (past the end, a NaN/Inf or zero direction) has o = 0,
- * d = 0, inv = 1 and tmin = +inf: it enters no box and hits nothing. */
+ * d = 0, inv = 2^64 and tmin = +inf: it enters no box and hits nothing. */
 typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;
-    lanef ix, iy, iz;              /* bvh_inverse(d), finite; 1/d in the exact form with RT_CONSERVATIVE */
-    lanei zx, zy, zz;              /* lanes whose direction component is zero (|d| <= RT_BVH_MIN_DIR) */
+    lanef ix, iy, iz;              /* bvh_inverse(d): finite, of d's sign (-0 negative); 1/d in the exact
+                                      form with RT_CONSERVATIVE */
+    int nx, ny, nz;                /* the near plane of each slab, 1 for hi (inv < 0): the first live lane's */
 #if RT_PACKET_BOX_FMA
-    lanef onx, ony, onz;           /* o * inv plus its rounding bound (the fused form's near planes) */
-    lanef ofx, ofy, ofz;           /* o * inv minus it (far planes): rt_bvh.h's bvh_ray, lane by lane */
+    lanef onx, ony, onz;           /* o inv padded for the near planes ... */
+    lanef ofx, ofy, ofz;           /* ... and the far planes: rt_bvh.h's bvh_ray, lane by lane */
+#else
+    lanei zx, zy, zz;              /* lanes whose direction component is zero (|d| <= RT_BVH_MIN_DIR) */
 #endif
     lanef tmin;
 #if RT_ISECT == RT_ISECT_WATERTIGHT
@@ -82,12 +89,14 @@ typedef struct {
 } HitPacket;
 
 #if RT_PACKET_BOX_FMA
-/* o inv of one axis moved by its rounding bound (rt_bvh.h, hazard 1 of the fused box test): the
- * near planes' distances come out no larger, the far planes' no smaller than the exact ones */
-RT_FN void packet_origin_pads(lanef o, lanef inv, lanef *o_near, lanef *o_far)
+/* o inv of one axis moved by its rounding bound, and for a zero component (|d| <= RT_BVH_MIN_DIR)
+ * by t_pad as well (rt_bvh.h's bvh_origin_pad, hazards 1 and 2 of the fused box test): the near
+ * planes' distances come out no larger, the far planes' no smaller than the exact ones */
+RT_FN void packet_origin_pads(lanef o, lanef inv, lanef d, lanef t_pad, lanef *o_near, lanef *o_far)
 {
     lanef oi = lf_mul(o, inv);
-    lanef pad = lf_mul(lf_abs(oi), lf_splat(RT_BVH_ULP_PAD));
+    lanef pad = lf_add(lf_mul(lf_abs(oi), lf_splat(RT_BVH_ULP_PAD)),
+                       lf_select(lf_splat(0.0f), t_pad, lf_tiny(d, RT_BVH_MIN_DIR)));
     *o_near = lf_add(oi, pad);
     *o_far = lf_sub(oi, pad);
 }
@@ -130,8 +139,8 @@ RT_FN void packet_watertight_axes(RayPacket *p, lanei live)
 
 /* The packet of rays o + t d, t in (tmin, tmax), lane by lane (all lanes vector operations);
  * returns the lanes that hold a ray that can enter a box (ray_can_enter's rule). */
-RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz,
-                        lanef tmin, lanef tmax)
+RT_FN lanei packet_init(RayPacket *p, HitPacket *h, float4 scene_min, float4 scene_max, lanef ox, lanef oy, lanef oz,
+                        lanef dx, lanef dy, lanef dz, lanef tmin, lanef tmax)
 {
     lanef zero = lf_splat(0.0f), one = lf_splat(1.0f);
     lanei live = li_and(li_and(lf_finite(ox), lf_finite(oy)), li_and(lf_finite(oz), lf_finite(dx)));
@@ -151,13 +160,25 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     p->iy = lf_select(one, lf_div(1.0f, lf_away_from_zero(dy, RT_BVH_MIN_DIR)), live);
     p->iz = lf_select(one, lf_div(1.0f, lf_away_from_zero(dz, RT_BVH_MIN_DIR)), live);
 #endif
+    int bits = lane_bits(live);
+    int first = bits ? rt_ctz(bits) : 0;
+    p->nx = lf_get(p->ix, first) < 0.0f;
+    p->ny = lf_get(p->iy, first) < 0.0f;
+    p->nz = lf_get(p->iz, first) < 0.0f;
+#if RT_PACKET_BOX_FMA
+    /* Beyond where the ray leaves the scene box: twice (|o - centre| + the box's diagonal) / |d| */
+    float3 c = mul3(add3(xyz(scene_min), xyz(scene_max)), 0.5f);
+    float diag = rt_sqrt(dot3(sub3(xyz(scene_max), xyz(scene_min)), sub3(xyz(scene_max), xyz(scene_min))));
+    lanef rx = lf_sub(p->ox, lf_splat(c.x)), ry = lf_sub(p->oy, lf_splat(c.y)), rz = lf_sub(p->oz, lf_splat(c.z));
+    lanef t_pad = lf_mul(lf_splat(2.0f), lf_div_lanes(lf_add(lf_sqrt(lf_dot3(rx, ry, rz, rx, ry, rz)), lf_splat(diag)),
+                                                      lf_sqrt(lf_dot3(p->dx, p->dy, p->dz, p->dx, p->dy, p->dz))));
+    packet_origin_pads(p->ox, p->ix, p->dx, t_pad, &p->onx, &p->ofx);
+    packet_origin_pads(p->oy, p->iy, p->dy, t_pad, &p->ony, &p->ofy);
+    packet_origin_pads(p->oz, p->iz, p->dz, t_pad, &p->onz, &p->ofz);
+#else
     p->zx = lf_tiny(p->dx, RT_BVH_MIN_DIR);
     p->zy = lf_tiny(p->dy, RT_BVH_MIN_DIR);
     p->zz = lf_tiny(p->dz, RT_BVH_MIN_DIR);
-#if RT_PACKET_BOX_FMA
-    packet_origin_pads(p->ox, p->ix, &p->onx, &p->ofx);
-    packet_origin_pads(p->oy, p->iy, &p->ony, &p->ofy);
-    packet_origin_pads(p->oz, p->iz, &p->onz, &p->ofz);
 #endif
     p->tmin = lf_select(lf_splat(RT_INF), tmin, live);
     h->t = lf_select(lf_splat(-RT_INF), tmax, live);
@@ -170,8 +191,8 @@ RT_FN lanei packet_init(RayPacket *p, HitPacket *h, lanef ox, lanef oy, lanef oz
     return live;
 }
 
-/* The packet of rays[0 .. count - 1] (count <= RT_LANES). */
-RT_FN lanei packet_of_rays(RayPacket *p, HitPacket *h, const Ray *rays, int count)
+/* The packet of rays[0 .. count - 1] (count <= RT_LANES) in the scene box [scene_min, scene_max]. */
+RT_FN lanei packet_of_rays(RayPacket *p, HitPacket *h, float4 scene_min, float4 scene_max, const Ray *rays, int count)
 {
     lanef zero = lf_splat(0.0f);
     lanef ox = zero, oy = zero, oz = zero, dx = zero, dy = zero, dz = zero, tmin = zero, tmax = zero;
@@ -185,7 +206,7 @@ RT_FN lanei packet_of_rays(RayPacket *p, HitPacket *h, const Ray *rays, int coun
         lf_set(&tmin, k, rays[k].tmin);
         lf_set(&tmax, k, rays[k].tmax);
     }
-    return packet_init(p, h, ox, oy, oz, dx, dy, dz, tmin, tmax);
+    return packet_init(p, h, scene_min, scene_max, ox, oy, oz, dx, dy, dz, tmin, tmax);
 }
 
 /* The hit record of lane k. */
@@ -197,26 +218,22 @@ RT_FN void packet_get_hit(const HitPacket *h, int k, Hit *hit)
     hit->tri = li_get(h->tri, k);
 }
 
-/* One slab: distances of the planes lo and hi, near in *t0 and far in *t1 (min/max, so the sign
- * of the direction needs no test); the fused form takes o inv padded for each (o_near, o_far). A lane whose direction has no
- * component along the axis (z) is decided exactly: inside [lo, hi] the slab does not bound it, a ray
- * lying in the plane of lo or hi included (whichever sign its zero has), outside it misses the box. */
-RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef o_near, lanef o_far, lanei z, lanef *t0,
-                       lanef *t1)
+#if !RT_PACKET_BOX_FMA
+/* One slab of the exact form: distances of the planes lo and hi, near in *t0 and far in *t1
+ * (min/max, so the sign of the direction needs no test). A lane whose direction has no component
+ * along the axis (z) is decided exactly: inside [lo, hi] the slab does not bound it, a ray lying in
+ * the plane of lo or hi included (whichever sign its zero has), outside it misses the box. */
+RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanei z, lanef *t0, lanef *t1)
 {
-#if RT_PACKET_BOX_FMA
-    lanef near = lf_min(lf_fms(lo, inv, o_near), lf_fms(hi, inv, o_near));
-    lanef far = lf_max(lf_fms(lo, inv, o_far), lf_fms(hi, inv, o_far));
-#else
     lanef ta = lf_mul(lf_sub(lf_splat(lo), o), inv);
     lanef tb = lf_mul(lf_sub(lf_splat(hi), o), inv);
     lanef near = lf_min(ta, tb), far = lf_max(ta, tb);
-#endif
     lanei inside = li_and(lf_le(lf_splat(lo), o), lf_le(o, lf_splat(hi)));
     lanef inf = lf_splat(RT_INF), minus_inf = lf_splat(-RT_INF);
     *t0 = lf_select(near, lf_select(inf, minus_inf, inside), z);
     *t1 = lf_select(far, lf_select(minus_inf, inf, inside), z);
 }
+#endif
 
 /* t_cull (rt_intersect.h) lane by lane: the closest hit's t widened by its rounding pad, -inf kept */
 RT_FN lanef lf_t_cull(lanef t)
@@ -224,28 +241,36 @@ RT_FN lanef lf_t_cull(lanef t)
     return lf_max(lf_mul(t, lf_splat(1.0f + RT_T_PAD)), lf_mul(t, lf_splat(1.0f - RT_T_PAD)));
 }
 
-/* Lanes whose segment [tmin, t_cut] meets the box [lo, hi] (inclusive at t_cut, as rt_bvh.h);
- * their entry distances in *t_near. */
-RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 hi, lanef *t_near)
+/* Lanes whose segment [tmin, t_cut] meets child c of the wide node at row `base` (inclusive at
+ * t_cut, as rt_bvh.h); their entry distances in *t_near. */
+RT_FN lanei packet_hits_child(RT_SCENE_PARAMS, const RayPacket *p, lanef t_cut, int base, int c, lanef *t_near)
 {
-    lanef nx, fx, ny, fy, nz, fz;
 #if RT_PACKET_BOX_FMA
-    packet_slab(lo.x, hi.x, p->ox, p->ix, p->onx, p->ofx, p->zx, &nx, &fx);
-    packet_slab(lo.y, hi.y, p->oy, p->iy, p->ony, p->ofy, p->zy, &ny, &fy);
-    packet_slab(lo.z, hi.z, p->oz, p->iz, p->onz, p->ofz, p->zz, &nz, &fz);
-#else
-    packet_slab(lo.x, hi.x, p->ox, p->ix, p->ox, p->ox, p->zx, &nx, &fx);
-    packet_slab(lo.y, hi.y, p->oy, p->iy, p->oy, p->oy, p->zy, &ny, &fy);
-    packet_slab(lo.z, hi.z, p->oz, p->iz, p->oz, p->oz, p->zz, &nz, &fz);
+    /* The planes by the packet's shared direction signs: lane vector 2 axis + near of the node */
+    lanef t0 = lf_max(lf_max(lf_fms(wide_lane(base + p->nx * WBVH_Q, c), p->ix, p->onx),
+                             lf_fms(wide_lane(base + (2 + p->ny) * WBVH_Q, c), p->iy, p->ony)),
+                      lf_max(lf_fms(wide_lane(base + (4 + p->nz) * WBVH_Q, c), p->iz, p->onz), p->tmin));
+    lanef t1 = lf_min(lf_min(lf_fms(wide_lane(base + (1 - p->nx) * WBVH_Q, c), p->ix, p->ofx),
+                             lf_fms(wide_lane(base + (3 - p->ny) * WBVH_Q, c), p->iy, p->ofy)),
+                      lf_min(lf_fms(wide_lane(base + (5 - p->nz) * WBVH_Q, c), p->iz, p->ofz), t_cut));
+#if RT_CONSERVATIVE
+    t1 = lf_mul(t1, lf_splat(RT_BVH_EXIT_SCALE));
 #endif
+#else
+    lanef nx, fx, ny, fy, nz, fz;
+    packet_slab(wide_lane(base, c), wide_lane(base + WBVH_Q, c), p->ox, p->ix, p->zx, &nx, &fx);
+    packet_slab(wide_lane(base + 2 * WBVH_Q, c), wide_lane(base + 3 * WBVH_Q, c), p->oy, p->iy, p->zy, &ny, &fy);
+    packet_slab(wide_lane(base + 4 * WBVH_Q, c), wide_lane(base + 5 * WBVH_Q, c), p->oz, p->iz, p->zz, &nz, &fz);
     lanef t0 = lf_max(lf_max(nx, ny), lf_max(nz, p->tmin));
     lanef t1 = lf_min(lf_min(fx, fy), fz);
 #if RT_CONSERVATIVE
     /* widen the far distance by its rounding bound, whichever its sign */
     t1 = lf_max(lf_mul(t1, lf_splat(1.0f + RT_T_PAD)), lf_mul(t1, lf_splat(1.0f - RT_T_PAD)));
 #endif
+    t1 = lf_min(t1, t_cut);
+#endif
     *t_near = t0;
-    return lf_le(t0, lf_min(t1, t_cut));
+    return lf_le(t0, t1);
 }
 
 /* Update the lanes in m whose hit (t, u, v) on triangle tri is closer_hit's: beyond tmin, nearer
@@ -403,11 +428,8 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
                 int child = rt_as_int(wide_lane(base + 6 * WBVH_Q, c));
                 if (child == WBVH_EMPTY)
                     break;
-                float4 lo = f4(wide_lane(base, c), wide_lane(base + 2 * WBVH_Q, c), wide_lane(base + 4 * WBVH_Q, c), 0.0f);
-                float4 hi = f4(wide_lane(base + WBVH_Q, c), wide_lane(base + 3 * WBVH_Q, c),
-                               wide_lane(base + 5 * WBVH_Q, c), 0.0f);
                 lanef t_near;
-                lanei m = packet_hits_box(p, t_cut, lo, hi, &t_near);
+                lanei m = packet_hits_child(RT_SCENE_ARGS, p, t_cut, base, c, &t_near);
                 if (!lane_any(m))
                     continue;
                 /* insertion by entry distance, farthest first */
@@ -460,10 +482,10 @@ RT_FN int packet_is_coherent(const RayPacket *p, lanei live)
         return 1;
     int k = rt_ctz(bits);
     float x = lf_get(p->dx, k), y = lf_get(p->dy, k), z = lf_get(p->dz, k);
+    /* the octant by the inverses' signs, which pick the near planes (-0 counts as negative) */
     lanef zero = lf_splat(0.0f);
-    lanei sx = lf_lt(p->dx, zero), sy = lf_lt(p->dy, zero), sz = lf_lt(p->dz, zero);
-    lanei same = li_and(li_and(li_eq(sx, li_splat(x < 0.0f ? -1 : 0)), li_eq(sy, li_splat(y < 0.0f ? -1 : 0))),
-                        li_eq(sz, li_splat(z < 0.0f ? -1 : 0)));
+    lanei same = li_and(li_and(li_eq(lf_lt(p->ix, zero), li_splat(-p->nx)), li_eq(lf_lt(p->iy, zero), li_splat(-p->ny))),
+                        li_eq(lf_lt(p->iz, zero), li_splat(-p->nz)));
     /* d . d0 >= cone |d| |d0|, squared (both sides are >= 0 where the signs agree) */
     lanef dot = lf_dot3s(p->dx, p->dy, p->dz, x, y, z);
     lanef dd = lf_dot3(p->dx, p->dy, p->dz, p->dx, p->dy, p->dz);

@@ -100,6 +100,8 @@ RT_FN lanef lf_away_from_zero(lanef d, float tiny)
 }
 RT_FN lanei li_eq(lanei a, lanei b) { lanei r; RT_LANE_LOOP r.v[k_] = a.v[k_] == b.v[k_] ? -1 : 0; return r; }
 RT_FN lanei li_add1(lanei a) { lanei r; RT_LANE_LOOP r.v[k_] = a.v[k_] + 1; return r; }
+RT_FN lanef lf_sqrt(lanef a) { lanef r; RT_LANE_LOOP r.v[k_] = sqrtf(a.v[k_]); return r; }
+RT_FN lanef lf_div_lanes(lanef a, lanef b) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_] / b.v[k_]; return r; }
 RT_FN void lf_store(float *p, lanef a) { RT_LANE_LOOP p[k_] = a.v[k_]; }
 RT_FN void li_store(int *p, lanei a) { RT_LANE_LOOP p[k_] = a.v[k_]; }
 RT_FN lanef lf_sub_mul(lanef a, lanef s, lanef c) { lanef r; RT_LANE_LOOP r.v[k_] = a.v[k_] - s.v[k_] * c.v[k_]; return r; }
@@ -228,6 +230,8 @@ RT_FN lanei lf_tiny(lanef a, float tiny) { return fabs(a) <= (lanef)(tiny); }
 RT_FN lanef lf_abs(lanef a) { return fabs(a); }
 RT_FN lanei li_eq(lanei a, lanei b) { return a == b; }
 RT_FN lanei li_add1(lanei a) { return a + 1; }
+RT_FN lanef lf_sqrt(lanef a) { return sqrt(a); }
+RT_FN lanef lf_div_lanes(lanef a, lanef b) { return a / b; }
 /* The lanes into a private array (a traversal's few dynamically indexed reads) */
 #if RT_LANES == 4
 RT_FN void lf_store(float *p, lanef a) { vstore4(a, 0, p); }

@@ -52,7 +52,8 @@ RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBA
     lanes_load_rows(directions, first, count, &dx, &dy, &dz, &tmax);
     RayPacket p;
     HitPacket h;
-    lanei live = packet_init(&p, &h, ox, oy, oz, dx, dy, dz, tmin, tmax);   /* lanes past count: d = 0 */
+    lanei live = packet_init(&p, &h, frame->scene_min, frame->scene_max, ox, oy, oz, dx, dy, dz, tmin, tmax);
+    /* lanes past count: d = 0 */
     if (!packet_is_coherent(&p, live)) {
         for (int k = 0; k < count; ++k)
             hits[first + k] = pack_hit(trace_one(RT_SCENE_ARGS, frame, origins[first + k], directions[first + k]));
@@ -96,8 +97,9 @@ RT_FN unsigned int render_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
 
 #if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
 /* The work of render_primary with the packet traversal: pixels x0 .. x0 + RT_LANES - 1 of row y
- * (those inside the frame), their camera rays traced as one packet, each then shaded and written
- * as render_pixel's would be. */
+ * (those inside the frame), their camera rays traced as one packet (one by one where they are not
+ * coherent: a row segment across an axis of the view, where a direction component changes sign),
+ * each then shaded and written as render_pixel's would be. */
 RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
                          RT_CONST const RtMaterial *materials, int x0, int y, RT_GLOBAL unsigned int *pixels,
                          RT_GLOBAL float4 *hits)
@@ -111,7 +113,18 @@ RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONS
         rays[k] = camera_ray(frame, k < count ? x0 + k : x0, y);
     RayPacket p;
     HitPacket h;
-    lanei live = packet_of_rays(&p, &h, rays, count);
+    lanei live = packet_of_rays(&p, &h, frame->scene_min, frame->scene_max, rays, count);
+    if (!packet_is_coherent(&p, live)) {
+        for (int k = 0; k < count; ++k) {
+            Hit hit;
+            int i = y * frame->width + x0 + k;
+            pixels[i] = render_pixel(RT_SCENE_ARGS, frame, lights, materials, x0 + k, y, &hit);
+#if RT_WRITE_HITS
+            hits[i] = pack_hit(hit);
+#endif
+        }
+        return;
+    }
     if (lane_any(live))
         traverse_bvh_packet(RT_SCENE_ARGS, &p, &h, live, 0);
 #pragma unroll
