@@ -337,15 +337,12 @@ RT_FN lanei packet_tri_watertight(const RayPacket *p, HitPacket *h, lanei live, 
         return m;
     lanef inv_det = lf_div(1.0f, det);
 #if RT_REFINE_T
-    /* The edge functions decide whether; the plane decides where: plane_t_fp64 of each lane that
-     * passed, unrolled so that lanes are read by constant indices */
-    lanef t = lf_splat(0.0f);
-#pragma unroll
-    for (int k = 0; k < RT_LANES; ++k) {
-        if (li_get(m, k))
-            lf_set(&t, k, plane_t_fp64(f3(lf_get(p->ox, k), lf_get(p->oy, k), lf_get(p->oz, k)),
-                                       f3(lf_get(p->dx, k), lf_get(p->dy, k), lf_get(p->dz, k)), v0, v1, v2));
-    }
+    /* The edge functions decide whether; the plane decides where: plane_t_fp64 on every lane (its
+     * normal once), a lane's t used only where its edge test passed */
+    double nx, ny, nz;
+    plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);
+    lanef t = lf_plane_t_fp64(p->ox, p->oy, p->oz, p->dx, p->dy, p->dz, (double)v0.x, (double)v0.y, (double)v0.z, nx,
+                              ny, nz);
 #else
     lanef t = lf_mul(lf_dot3_scaled(u, v, w, p->sz, az, bz, cz), inv_det);
 #endif

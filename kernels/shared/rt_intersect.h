@@ -177,14 +177,29 @@ RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx),
  * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. Pure and branch-free, so a lane version is
  * the same expressions on double lanes. A ray parallel to the plane gives an inf or NaN t, which
  * closer_hit() rejects. */
-RT_FN float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
+RT_FN void plane_normal_fp64(float3 v0, float3 v1, float3 v2, double *nx, double *ny, double *nz)
 {
     double ax = (double)v1.x - (double)v0.x, ay = (double)v1.y - (double)v0.y, az = (double)v1.z - (double)v0.z;
     double bx = (double)v2.x - (double)v0.x, by = (double)v2.y - (double)v0.y, bz = (double)v2.z - (double)v0.z;
-    double nx = ay * bz - az * by, ny = az * bx - ax * bz, nz = ax * by - ay * bx;
+    *nx = ay * bz - az * by;
+    *ny = az * bx - ax * bz;
+    *nz = ax * by - ay * bx;
+}
+
+/* plane_t_fp64 for a normal n from plane_normal_fp64 (the lane tests share n between their lanes:
+ * rt_lanes.h's lf_plane_t_fp64 is this expression on each lane) */
+RT_FN float plane_t_fp64_n(float3 o, float3 d, float3 v0, double nx, double ny, double nz)
+{
     double num = nx * ((double)v0.x - (double)o.x) + ny * ((double)v0.y - (double)o.y) + nz * ((double)v0.z - (double)o.z);
     double den = nx * (double)d.x + ny * (double)d.y + nz * (double)d.z;
     return (float)(num / den);
+}
+
+RT_FN float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
+{
+    double nx, ny, nz;
+    plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);
+    return plane_t_fp64_n(o, d, v0, nx, ny, nz);
 }
 #endif
 

@@ -131,6 +131,21 @@ RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y,
     RT_LANE_LOOP r.v[k_] = a.v[k_] * (s.v[k_] * x.v[k_]) + b.v[k_] * (s.v[k_] * y.v[k_]) + c.v[k_] * (s.v[k_] * z.v[k_]);
     return r;
 }
+#if RT_HAS_FP64
+/* rt_intersect.h's plane_t_fp64_n on each lane's ray o + t d, the triangle's v0 = (px, py, pz) and
+ * normal n in double */
+RT_FN lanef lf_plane_t_fp64(lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz, double px, double py,
+                            double pz, double nx, double ny, double nz)
+{
+    lanef r;
+    RT_LANE_LOOP {
+        double num = nx * (px - (double)ox.v[k_]) + ny * (py - (double)oy.v[k_]) + nz * (pz - (double)oz.v[k_]);
+        double den = nx * (double)dx.v[k_] + ny * (double)dy.v[k_] + nz * (double)dz.v[k_];
+        r.v[k_] = (float)(num / den);
+    }
+    return r;
+}
+#endif
 RT_FN int lane_bits(lanei m) { int r = 0; RT_LANE_LOOP r |= m.v[k_] ? 1 << k_ : 0; return r; }
 RT_FN lanei li_of_bits(lanef a) { lanei r; RT_LANE_LOOP r.v[k_] = __float_as_int(a.v[k_]); return r; }
 RT_FN lanef lf_join4(float4 a, float4 b, float4 c, float4 d)
@@ -252,12 +267,15 @@ RT_FN lanef lf_diff_of_products_rn(lanef a, lanef b, lanef c, lanef d)
 }
 #if RT_HAS_FP64
 #if RT_LANES == 4
+#define RT_LANED double4
 #define RT_LANE_DOUBLE(a) convert_double4(a)
 #define RT_LANE_FLOAT(a) convert_float4(a)
 #elif RT_LANES == 8
+#define RT_LANED double8
 #define RT_LANE_DOUBLE(a) convert_double8(a)
 #define RT_LANE_FLOAT(a) convert_float8(a)
 #else
+#define RT_LANED double16
 #define RT_LANE_DOUBLE(a) convert_double16(a)
 #define RT_LANE_FLOAT(a) convert_float16(a)
 #endif
@@ -270,6 +288,17 @@ RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y,
 {
     return a * (s * x) + b * (s * y) + c * (s * z);
 }
+#if RT_HAS_FP64
+/* rt_intersect.h's plane_t_fp64_n on each lane's ray o + t d, the triangle's v0 = (px, py, pz) and
+ * normal n in double: the same expression on double lanes (two AVX registers, or one AVX-512) */
+RT_FN lanef lf_plane_t_fp64(lanef ox, lanef oy, lanef oz, lanef dx, lanef dy, lanef dz, double px, double py,
+                            double pz, double nx, double ny, double nz)
+{
+    RT_LANED num = nx * (px - RT_LANE_DOUBLE(ox)) + ny * (py - RT_LANE_DOUBLE(oy)) + nz * (pz - RT_LANE_DOUBLE(oz));
+    RT_LANED den = nx * RT_LANE_DOUBLE(dx) + ny * RT_LANE_DOUBLE(dy) + nz * RT_LANE_DOUBLE(dz);
+    return RT_LANE_FLOAT(num / den);
+}
+#endif
 /* Bit k of the result is lane k's sign bit: one vmovmskps where the compiler targets AVX (PoCL on
  * x86-64 does; LLVM does not see the generic form below as one), else an AND with the lane's bit
  * and an OR across the lanes */
