@@ -41,10 +41,10 @@ MAX_ROW = (1 << (31 - LEAF_BITS)) - 1
 # SAH costs of the binary tree before it is collapsed: a binary node (two box tests) costs two
 # triangle tests, leaves may hold up to 15 triangles (tuned for packets on the issue 15 views: 2-8 %
 # more Mrays per CPU-second than the GPU BVH's 1.0 and 8)
-CPU_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0)
+CPU_BUILD = BvhBuildParams(max_leaf_size=8, cost_traversal=2.0)
 # ... and the same with spatial splits (SBVH, as the GPU BVH's SPLIT_BUILD), kept where its SAH cost
 # is SPLIT_MIN_GAIN lower (rtlab.accel.bvh_stats)
-CPU_SPLIT_BUILD = BvhBuildParams(max_leaf_size=15, cost_traversal=2.0, spatial_alpha=1e-5)
+CPU_SPLIT_BUILD = BvhBuildParams(max_leaf_size=8, cost_traversal=2.0, spatial_alpha=1e-5)
 
 
 def cpu_bvh(vertices, faces, cache_dir=None) -> Bvh:
