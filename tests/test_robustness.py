@@ -278,6 +278,58 @@ def test_every_traversal_returns_the_brute_force_ids_at_ties(backend):
                                      f"brute force {brute.tri[wrong[0]]} at {brute.t[wrong[0]]!r}")
 
 
+# Families of plain rays (8: bad rays, run in a child process; 11: Whitted frames) whose scene files
+# are not needed or are found
+DEFAULT_FAMILIES = (1, 2, 3, 4, 5, 6, 7, 10, 12, 13, 14, 15)
+
+
+def _coherent_packets(directions: np.ndarray, lanes: int, cone: float = 0.9) -> int:
+    """Packets of `lanes` consecutive rays that rt_bvh_packet.h's packet_is_coherent takes together
+    (one octant, within `cone` of the first ray's direction), counted on the host: a check that the
+    families below exercise the packet path and not only the ray-by-ray one."""
+    d = np.asarray(directions, np.float64)
+    n = len(d) // lanes * lanes
+    if n == 0:
+        return 0
+    g = d[:n].reshape(-1, lanes, 3)
+    first = g[:, :1, :]
+    same_octant = np.all(np.signbit(g) == np.signbit(first), axis=(1, 2))
+    cos = np.einsum("pki,pki->pk", g, np.broadcast_to(first, g.shape)) / (
+        np.linalg.norm(g, axis=2) * np.linalg.norm(first, axis=2))
+    return int(np.sum(same_octant & np.all(cos >= cone, axis=1)))
+
+
+def test_default_cpu_variant_is_the_watertight_packet_traversal_with_the_scalar_ids(backend):
+    """On a CPU the library traces with the packet traversal and the watertight test (nothing
+    named: trace()'s default), and on every family of plain rays it returns, ray for ray, the
+    triangle and t of the scalar kd stack and BVH traversals with the same test. The families hold
+    coherent packets (traced together) and incoherent ones (ray by ray), and forcing every packet
+    ray by ray (RT_PACKET_CONE above 1) changes nothing either."""
+    from rtlab.device.kernels import PACKET_LANES, Variant
+    from rtlab.device.tracing import default_variant, trace
+    if backend.is_gpu():
+        pytest.skip("the CPU default")
+    assert default_variant(backend) == Variant(traversal="bvh-packet", intersection="watertight")
+    coherent = incoherent = 0
+    for family in DEFAULT_FAMILIES:
+        if family in FAMILY_SCENE_FILES:
+            require_scene_file(FAMILY_SCENE_FILES[family])
+        for case in family_cases(family, "test"):
+            got = trace(case.scene, case.origins, case.directions, backend=backend, min_stack_size=64)
+            alone = trace(case.scene, case.origins, case.directions, backend=backend, min_stack_size=64,
+                          defines={"RT_PACKET_CONE": 2})
+            packets = _coherent_packets(case.directions, PACKET_LANES)
+            coherent += packets
+            incoherent += case.n_rays // PACKET_LANES - packets
+            for other, (tri, t) in [("ray by ray", (alone.tri, alone.t))] + [
+                    (traversal, trace_case(case, backend, "watertight", traversal)[:2]) for traversal in ("stack", "bvh")]:
+                wrong = np.flatnonzero((tri != got.tri) | ((tri >= 0) & (t != got.t)))
+                assert wrong.size == 0, (f"family {family} {case.label}: the default and {other} differ on {wrong.size} of "
+                                         f"{case.n_rays} rays, e.g. ray {wrong[0]}: {got.tri[wrong[0]]} at "
+                                         f"{got.t[wrong[0]]!r} against {tri[wrong[0]]} at {t[wrong[0]]!r}")
+    assert coherent > 100 and incoherent > 100, (coherent, incoherent)
+
+
 @pytest.mark.gpu
 def test_gpu_closest_hit_families_on_cuda_and_nvidia_opencl():
     """On the GPU machine (fused multiply-adds, NVIDIA's 2.5-ulp reciprocal in OpenCL): families 13-15

@@ -13,7 +13,11 @@ each side's CPU time is measured too: the process's CPU time minus the calling t
 trace (PoCL's worker threads: the kernel) and the calling thread's during Embree's run. Mrays per
 CPU-second is throughput per core, whatever the load.
 
-    rows = [bench_cpu(make_rays("bunny/fill", "primary", 1024), backend, Variant(traversal="bvh-packet"))]
+    rows = bench_cpu_variants(make_rays("bunny/fill", "diffuse", 1024), backend,
+                              [default_variant(backend), Variant("bvh-wide", "watertight")])
+
+Several variants are timed in the same rounds as one Embree run each round (every row of a batch
+shares Embree's figures), the library's default (rtlab.device.tracing.default_variant) marked.
 """
 from __future__ import annotations
 
@@ -28,8 +32,11 @@ from ..errors import RtlabError
 from .tables import Table, report_markdown
 
 EMBREE_HINT = "Embree is not installed: `pip install 'rtlab[bench]'` (or `pip install embreex`)"
-DEFAULT_VIEWS = "bunny/fill,sponza/inside,default"
-CPU_TRAVERSAL = "bvh-packet"
+DEFAULT_VIEWS = "bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside,default"
+# What `rtlab bench cpu` times beside Embree: the library's default, then the packet traversal with
+# the paper's test, the wide single-ray traversal alone, and the kd stack traversal (the CPU default
+# before the packet traversal was)
+DEFAULT_VARIANTS = "default,bvh-packet/moller,bvh-wide,stack"
 
 
 def embree_version() -> str:
@@ -90,6 +97,7 @@ class CpuRow:
     rtlab_error: dict = field(default_factory=dict)
     embree_error: dict = field(default_factory=dict)
     load: float = 0.0                # 1-minute load average when the view was done
+    kind: str = "primary"            # the rays: "primary" or "diffuse" (rtlab.benches.rays)
 
     @property
     def rtlab_mrays(self) -> float:
@@ -127,39 +135,61 @@ def error_text(e: dict) -> str:
 
 def bench_cpu(batch, backend, variant: Variant | None = None, rounds: int = 7, embree: EmbreeTracer | None = None,
               progress=None) -> CpuRow:
-    """Trace ``batch`` (a rtlab.benches.rays.RayBatch) with rtlab on ``backend`` and with Embree,
-    alternately, ``rounds`` times after one untimed round each; medians, ratio and both errors."""
-    from ..device.tracing import trace
+    """One variant (None: the library's default) against Embree: bench_cpu_variants' row."""
+    from ..device.tracing import default_variant
+    return bench_cpu_variants(batch, backend, [variant or default_variant(backend)], rounds, embree, progress)[0]
+
+
+def bench_cpu_variants(batch, backend, variants: list[Variant], rounds: int = 7, embree: EmbreeTracer | None = None,
+                       progress=None) -> list[CpuRow]:
+    """Trace ``batch`` (a rtlab.benches.rays.RayBatch) with rtlab on ``backend`` in each variant and
+    with Embree, in turns, ``rounds`` times after one untimed round each: a row per variant with
+    the medians, the ratio to Embree's run of the same rounds and both errors."""
+    from ..device.tracing import default_variant, trace
     if rounds < 1:
         raise RtlabError(f"rounds must be at least 1, got {rounds}")
-    variant = variant or Variant(traversal=CPU_TRAVERSAL)
+    if not variants:
+        raise RtlabError("bench_cpu_variants needs at least one variant")
     embree = embree or EmbreeTracer(batch.scene.vertices, batch.scene.faces)
-    result = trace(batch.scene, batch.origins, batch.directions, backend, variant)      # compiles, uploads
+    results = [trace(batch.scene, batch.origins, batch.directions, backend, v) for v in variants]  # compiles, uploads
     e_tri, e_t, _, _ = embree.trace(batch.origins, batch.directions)
-    rtlab_ms, embree_ms, rtlab_cpu, embree_cpu = [], [], [], []
+    rtlab_ms = [[] for _ in variants]
+    rtlab_cpu = [[] for _ in variants]
+    embree_ms, embree_cpu = [], []
     for i in range(rounds):
         if progress:
             progress(i)
-        p0, c0 = process_cpu_seconds(), thread_cpu_seconds()
-        result = trace(batch.scene, batch.origins, batch.directions, backend, variant)
-        rtlab_cpu.append(((process_cpu_seconds() - p0) - (thread_cpu_seconds() - c0)) * 1e3)
-        rtlab_ms.append(result.kernel_ms)
+        for k, v in enumerate(variants):
+            p0, c0 = process_cpu_seconds(), thread_cpu_seconds()
+            results[k] = trace(batch.scene, batch.origins, batch.directions, backend, v)
+            rtlab_cpu[k].append(((process_cpu_seconds() - p0) - (thread_cpu_seconds() - c0)) * 1e3)
+            rtlab_ms[k].append(results[k].kernel_ms)
         e_tri, e_t, seconds, cpu = embree.trace(batch.origins, batch.directions)
         embree_ms.append(seconds * 1e3)
         embree_cpu.append(cpu * 1e3)
     threads = int(getattr(getattr(backend, "device", None), "max_compute_units", 1) or 1)
-    return CpuRow(batch.view, batch.size, batch.n, variant.label(), backend.device_name, threads, rtlab_ms,
-                  embree_ms, rtlab_cpu, embree_cpu, batch.error(result.tri, result.t), batch.error(e_tri, e_t),
-                  os.getloadavg()[0])
+    default = default_variant(backend)
+    embree_error = batch.error(e_tri, e_t)
+    return [CpuRow(batch.view, batch.size, batch.n, _variant_name(v, default), backend.device_name, threads, rtlab_ms[k],
+                   embree_ms, rtlab_cpu[k], embree_cpu, batch.error(results[k].tri, results[k].t), embree_error,
+                   os.getloadavg()[0], kind=batch.kind)
+            for k, v in enumerate(variants)]
 
 
-COLUMNS = ("view", "rays", "traversal", "threads", "rtlab Mrays/s", "Embree Mrays/s", "ratio",
+def _variant_name(variant: Variant, default: Variant) -> str:
+    """traversal/test, with " (default)" for the library's default variant."""
+    name = f"{variant.traversal}/{variant.intersection}"
+    return name + " (default)" if variant == default else name
+
+
+COLUMNS = ("view", "kind", "rays", "rtlab variant", "threads", "rtlab Mrays/s", "Embree Mrays/s", "ratio",
            "rtlab Mrays/CPU-s", "Embree Mrays/CPU-s", "per core", "rtlab error", "Embree error", "load")
 
 
 def table_rows(rows: list[CpuRow]) -> list[tuple[str, ...]]:
     """Cells under COLUMNS. Errors: mismatches (ties) among the checked rays, largest relative t error."""
-    return [(r.view, f"{r.size}²", r.variant.split("/")[0], str(r.threads), f"{r.rtlab_mrays:.2f}",
+    return [(r.view, r.kind, f"{r.size}²" if r.kind == "primary" else f"{r.rays:,}", r.variant, str(r.threads),
+             f"{r.rtlab_mrays:.2f}",
              f"{r.embree_mrays:.2f}", f"{r.ratio:.2f}×", f"{r.rtlab_mrays_cpu:.2f}", f"{r.embree_mrays_cpu:.2f}",
              f"{r.ratio_per_core:.2f}×", error_text(r.rtlab_error), error_text(r.embree_error), f"{r.load:.1f}")
             for r in rows]
@@ -170,8 +200,10 @@ def cpu_tables(rows: list[CpuRow], title: str = "rtlab on the CPU against Embree
 
 
 def cpu_markdown(rows: list[CpuRow], command: str, rounds: int) -> str:
-    intro = (f"{os.cpu_count()} cores; rtlab: OpenCL ({', '.join(sorted({r.variant for r in rows}))}); Embree: "
-             f"{embree_version()}, one thread; medians of {rounds} alternating rounds; ratio = rtlab / Embree in "
+    intro = (f"{os.cpu_count()} cores; rtlab: OpenCL, variants traversal/test (the library's default marked); Embree: "
+             f"{embree_version()}, one thread, run once a round after rtlab's variants; medians of {rounds} "
+             "alternating rounds; rays: the view's size² primary rays, or the number of its diffuse rays (one a hit "
+             "pixel, ../shared/bench/README.md); ratio = rtlab / Embree in "
              "Mrays/s (wall clock: rtlab's kernel time with all its threads, Embree's one thread); per core = the "
              "same in Mrays per CPU-second (PoCL's threads' CPU time, Embree's thread's), which the machine's load "
              "does not change; errors: mismatches (ties) among the rays checked against the float64 reference, "

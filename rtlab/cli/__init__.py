@@ -23,6 +23,15 @@ for group in (scene, render, bench, course):       # bench_paper's commands join
     group.register(app)
 
 
+@app.callback()
+def _options(verbose: bool = typer.Option(False, "--verbose", "-v",
+                                          help="show compiler output (build logs, warnings) of every kernel built; "
+                                               "$RTLAB_VERBOSE=1 does the same")):
+    """rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL."""
+    if verbose:
+        os.environ["RTLAB_VERBOSE"] = "1"     # read by rtlab.backends.base.verbose() at each build
+
+
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 

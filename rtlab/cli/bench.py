@@ -131,40 +131,51 @@ def bench_rays(ctx: typer.Context,
 
 @bench_app.command("cpu")
 def bench_cpu(ctx: typer.Context,
-              views: str = typer.Option("bunny/fill,sponza/inside,default",
+              views: str = typer.Option("bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside,default",
                                         help="benchmark views (scene/view) or presets with their own camera"),
-              size: int = typer.Option(1024, help="image side: size² primary rays"),
-              traversal: str = typer.Option("bvh-packet", help="rtlab's traversals, comma-separated"),
-              isect: str = typer.Option("moller"),
+              kind: str = typer.Option("primary,diffuse", help="ray kinds, comma-separated: primary, diffuse "
+                                                                "(../shared/bench/README.md)"),
+              size: int = typer.Option(1024, help="image side: size² primary rays (and a diffuse ray a hit pixel)"),
+              variants: str = typer.Option("default,bvh-packet/moller,bvh-wide,stack",
+                                           help="rtlab's variants, comma-separated: 'default' (the library's on this "
+                                                "device), a traversal, a test or traversal/test (the rest from the "
+                                                "default)"),
               device: Optional[str] = typer.Option(None, help="OpenCL device name substring (default: the CPU)"),
               threads: Optional[int] = typer.Option(None, help="PoCL worker threads (POCL_MAX_PTHREAD_COUNT; "
                                                                "default: one a core)"),
               rounds: int = typer.Option(7, help="alternating timed rounds; medians are reported"),
               md: Optional[Path] = MD):
-    """rtlab on PoCL against Embree (embreex, one thread), the same rays in the same run: Mrays/s of
-    each, the ratio, and each one's error against the float64 reference."""
+    """rtlab on PoCL against Embree (embreex, one thread), the same rays in the same run, each round
+    every rtlab variant then Embree: Mrays/s of each, the ratio, and each one's error against the
+    float64 reference."""
     if threads is not None:
         if threads < 1:
             raise RtlabError(f"--threads must be at least 1, got {threads}")
         os.environ["POCL_MAX_PTHREAD_COUNT"] = str(threads)    # read when PoCL starts, below
     from ..backends import get_backend
-    from ..benches.cpu import EmbreeTracer, bench_cpu as bench, cpu_markdown, cpu_tables, table_rows
-    from ..benches.rays import make_rays
-    from ..device.kernels import Variant
-    variants = [Variant(traversal=t, intersection=isect) for t in names(traversal)]
+    from ..benches.cpu import EmbreeTracer, bench_cpu_variants, cpu_markdown, cpu_tables, table_rows
+    from ..benches.rays import RAY_KINDS, make_rays
+    from ..device.tracing import default_variant, resolve_variant
     backend = get_backend("opencl", device if device is not None else os.environ.get("RTLAB_DEVICE", "cpu"))
+    chosen = [default_variant(backend) if v == "default" else resolve_variant(v, backend) for v in names(variants)]
+    kinds = names(kind)
+    if not chosen or not kinds or any(k not in RAY_KINDS for k in kinds):
+        raise RtlabError(f"--kind takes {', '.join(RAY_KINDS)} and --variants at least one variant, got "
+                         f"--kind {kind!r} --variants {variants!r}")
     rows = []
     for view in names(views):
-        with console.status(f"{view}: {size}² rays and their float64 reference..."):
-            batch = make_rays(view, "primary", size)
-        with console.status(f"{view}: Embree's BVH..."):
-            embree = EmbreeTracer(batch.scene.vertices, batch.scene.faces)
-        for variant in variants:
-            with console.status(f"{view}: rtlab {variant.traversal} and Embree, {rounds} rounds...") as status:
-                rows.append(bench(batch, backend, variant, rounds, embree,
-                                  progress=lambda i: status.update(f"{view} {variant.traversal}: round {i + 1} "
-                                                                   f"of {rounds}")))
-            console.print("  ".join(table_rows(rows[-1:])[0]))
+        embree = None
+        for k in kinds:
+            with console.status(f"{view}: {k} rays at {size}² and their float64 reference..."):
+                batch = make_rays(view, k, size)
+            if embree is None:
+                with console.status(f"{view}: Embree's BVH..."):
+                    embree = EmbreeTracer(batch.scene.vertices, batch.scene.faces)
+            with console.status(f"{view} {k}: rtlab and Embree, {rounds} rounds...") as status:
+                rows += bench_cpu_variants(batch, backend, chosen, rounds, embree,
+                                           progress=lambda i: status.update(f"{view} {k}: round {i + 1} of {rounds}"))
+            for cells in table_rows(rows[-len(chosen):]):
+                console.print("  ".join(cells))
     print_tables(cpu_tables(rows, f"rtlab on {backend.device_name} against Embree (one thread), same rays"))
     append_markdown(md, cpu_markdown(rows, command_line(ctx), rounds))
 

@@ -16,7 +16,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            out: Path = typer.Option(Path("render.png"), help="PNG to write"),
            check: bool = typer.Option(False, help="compare with the float64 reference and print the error"),
            repeats: int = typer.Option(5, min=1, help="timed launches (median reported)"),
-           traversal: Optional[str] = typer.Option(None, help="traversal (default: bvh on a GPU, stack on a CPU)"),
+           traversal: Optional[str] = typer.Option(None, help="traversal (default: bvh on a GPU, bvh-packet on a CPU)"),
            isect: Optional[str] = typer.Option(None, help="triangle intersection test (default: watertight; the "
                                                "paper's: moller)"),
            block: Optional[str] = typer.Option(None, help="block / work-group shape WxH (default: 8x16 on a GPU, "

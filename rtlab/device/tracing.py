@@ -29,14 +29,21 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13). On a GPU the
 # BVH in 8x16 blocks: twice the kd stack's rays per second on most benchmark views, and tile-shaped
 # warps trace indoor views 18-19 % faster than 32x4 rows (H100, docs/benchmarks.md, issue 12). On a
-# CPU the kd stack traversal, which PoCL runs faster than the single-ray BVH. The lab steps and the
+# CPU (PoCL) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones (directions of
+# one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH together in
+# SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same tree, a
+# node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch
+# that mixes both is traced each part its way. Against Embree's single thread on the benchmark views
+# (docs/benchmarks.md, `rtlab bench cpu`): 2x and more on camera rays, above it on diffuse rays,
+# where the kd stack traversal, the CPU default before, ran at 0.5-0.9x. The lab steps and the
 # paper's benches name their variants and keep the paper's.
-DEFAULT_VARIANT = Variant(intersection="watertight")
+DEFAULT_VARIANT = Variant(traversal="bvh-packet", intersection="watertight")
 GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
 
 
 def default_variant(backend) -> Variant:
-    """The variant the library runs on ``backend`` when none is named (see DEFAULT_VARIANT)."""
+    """The variant the library runs on ``backend`` when none is named: GPU_DEFAULT_VARIANT on a GPU,
+    DEFAULT_VARIANT (the CPU's packet traversal) on any other device."""
     return GPU_DEFAULT_VARIANT if backend.is_gpu() else DEFAULT_VARIANT
 
 
@@ -264,7 +271,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     median device time. ``width``: the rays form an image of that many columns, row-major (as
     camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
     order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
-    The hits are the same either way."""
+    A packet traversal ("bvh-packet", the CPU default) takes consecutive rays anyway, a row segment of
+    such an image. The hits are the same either way."""
     scene = require_scene(scene)
     origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")
     if origins.shape != directions.shape:
@@ -288,8 +296,11 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     o_buf, d_buf, h_buf = ray_buffers(backend, n)
     backend.fill(o_buf, float4_rows(origins, lo * scale))
     backend.fill(d_buf, float4_rows(directions, hi * scale))
-    items = -(-n // rays_per_work_item(variant))        # a packet traversal takes several rays an item
-    launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width else \
+    lanes = rays_per_work_item(variant)        # a packet traversal takes several consecutive rays an item:
+    items = -(-n // lanes)                     # the pixels of a row segment when the rays are an image
+    if width is not None and (int(width) <= 0 or n % int(width)):
+        raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
+    launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width and lanes == 1 else \
         (lambda: program.launch("trace_rays", (items,), (TRACE_BLOCK,),
                                 ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
