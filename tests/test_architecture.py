@@ -211,15 +211,15 @@ def test_variant_codes_are_the_headers(table, prefix):
 
 
 def test_layout_constants_are_the_headers():
-    from rtlab.accel import bvh, bvh_packet, kdtree, ropes, tri_data
+    from rtlab.accel import bvh, bvh_wide, kdtree, ropes, tri_data
     from rtlab.device import kernels, whitted
     from rtlab.reference import whitted as reference_whitted
     from rtlab.scene.materials import MIN_WEIGHT
     d = {k: int(v) for k, v in _header_defines().items()}
     assert (bvh.LEAF_BITS, bvh.NODE_FLOAT4S) == (d["BVH_LEAF_BITS"], d["BVH_NODE_STRIDE"])
-    assert (bvh_packet.LEAF_BITS, bvh_packet.TRI_ROWS, bvh_packet.EMPTY) == (d["PBVH_LEAF_BITS"], d["PBVH_TRI_ROWS"],
-                                                                            d["PBVH_EMPTY"])
-    assert (kernels.PACKET_LANES, kernels.PACKET_WIDTH) == (d["RT_LANES"], d["RT_PACKET_WIDTH"])
+    assert (bvh_wide.LEAF_BITS, bvh_wide.EMPTY) == (d["WBVH_LEAF_BITS"], d["WBVH_EMPTY"])
+    assert (bvh_wide.node_rows(8), bvh_wide.block_rows(8)) == (d["WBVH_NODE_ROWS"], d["WBVH_BLOCK_ROWS"])
+    assert kernels.PACKET_LANES == d["RT_LANES"] == 8
     assert kdtree.LEAF_TAG == d["KD_LEAF"] and ropes.RECORD_FLOAT4S == d["KD_ROPES_LEAF_STRIDE"]
     assert (tri_data.WALD_ROWS, tri_data.PLUCKER_ROWS) == (d["RT_WALD_ROWS"], d["RT_PLUCKER_ROWS"])
     assert whitted.NO_RAY == reference_whitted.NO_RAY == d["RT_NO_RAY"]

@@ -12,7 +12,6 @@ import pytest
 
 import rtlab
 from rtlab.accel.bvh import MAX_LEAF, BvhBuildParams, build_bvh, decode_leaf
-from rtlab.accel.bvh_packet import PACKET_BUILD
 from rtlab.accel.bvh_stats import sah_cost, traversal_counts
 from rtlab.reference import compare_hits, reference_trace
 from rtlab.scene.model import Camera, Material, Scene
@@ -121,7 +120,6 @@ def test_sbvh_off_by_default():
     a, b = build_bvh(v, f), build_bvh(v, f, BvhBuildParams(spatial_alpha=0.0))
     for name in ("child_lo", "child_hi", "child_ref", "objects"):
         assert np.array_equal(getattr(a, name), getattr(b, name))
-    assert PACKET_BUILD.spatial_alpha == 0.0, "the packet BVH is not checked with duplicated references"
     assert BvhBuildParams().key() != SBVH.key()
 
 
@@ -213,6 +211,35 @@ def test_traversal_bvh_keeps_spatial_splits_only_where_they_lower_the_sah(tmp_pa
     arrays = bvh_accel(scene, None)
     assert np.array_equal(arrays.objects, traversal_bvh(v, f).objects)
     assert len(arrays.objects) > len(f), "the device scene did not get the split tree"
+
+
+def test_cpu_bvh_keeps_spatial_splits_where_they_lower_the_sah_and_packets_trace_them(backend, tmp_path):
+    """The CPU traversals' tree (bvh_wide.cpu_bvh, read by "bvh-packet" and "bvh-wide") chooses as
+    the GPU's does, with its own costs; the packet and the wide traversal find the float64
+    reference's hits on the split tree, camera rays (packets) and rays in every direction (ray by
+    ray) alike."""
+    from rtlab.accel.bvh_stats import SPLIT_MIN_GAIN
+    from rtlab.accel.bvh_wide import CPU_BUILD, CPU_SPLIT_BUILD, cpu_bvh
+    from rtlab.device.kernels import Variant
+    from rtlab.device.tracing import trace
+    from rtlab.scene.model import camera_rays
+    for (v, f), want_split in ((_big_triangles_over_small_ones(), True), (_default_with_degenerates()[:2], False)):
+        plain, split = build_bvh(v, f, CPU_BUILD), build_bvh(v, f, CPU_SPLIT_BUILD)
+        gain = 1.0 - sah_cost(split) / sah_cost(plain)
+        assert (gain >= SPLIT_MIN_GAIN) == want_split, f"SAH gain {gain:.3f}"
+        assert cpu_bvh(v, f, cache_dir=tmp_path).params.spatial == want_split
+    v, f = _big_triangles_over_small_ones()
+    scene = Scene("crossed", v, f, np.zeros(len(f), np.int32), [Material()],
+                  Camera((2.2, 1.7, 2.5), (0.5, 0.5, 0.5), width=48, height=48), source="procedural")
+    o_cam, d_cam = camera_rays(scene.camera)
+    o_any, d_any = _rays(seed=11)
+    o, d = np.concatenate([o_cam, o_any]), np.concatenate([d_cam, d_any])
+    ref = reference_trace(v, f, o, d)
+    for traversal in ("bvh-packet", "bvh-wide"):
+        got = trace(scene, o, d, backend, Variant(traversal, "watertight"))
+        c = compare_hits(ref, got.tri, got.t, v, f, o, d)
+        assert c.n_mismatch == 0, f"{traversal}: {c.summary()}"
+        assert np.sum(got.tri >= 0) > len(o) // 10
 
 
 @pytest.mark.parametrize("n_tris", [0, 1, 2, 3])

@@ -185,6 +185,25 @@ def test_wide_layout_matches_the_mesh(lanes):
     assert depth < build_bvh(v, f).depth, "collapsing did not make the tree shallower"
 
 
+@pytest.mark.parametrize("n_tris", [1, 2, 9])
+def test_cpu_traversals_on_the_smallest_meshes(backend, n_tris):
+    """Meshes of 1, 2 and 9 triangles (a root holding one leaf twice, a leaf in one block): the
+    packet and the wide traversal find the float64 reference's hits, coherent rays and any rays."""
+    from rtlab.scene.model import Camera, Material, Scene
+    rng = np.random.default_rng(n_tris)
+    v = rng.random((3 * n_tris, 3)).astype(np.float32)
+    f = np.arange(3 * n_tris, dtype=np.int32).reshape(-1, 3)
+    scene = Scene("small", v, f, np.zeros(n_tris, np.int32), [Material()],
+                  Camera((2.0, 1.5, 2.5), (0.5, 0.5, 0.5), width=24, height=24), source="procedural")
+    o_cam, d_cam = camera_rays(scene.camera)
+    o_any, d_any = _random_rays(scene, 500, seed=n_tris)
+    o, d = np.concatenate([o_cam, o_any]), np.concatenate([d_cam, d_any])
+    for traversal in ("bvh-packet", "bvh-wide"):
+        got = trace(scene, o, d, backend=backend, variant=Variant(traversal, "watertight"))
+        _assert_matches_reference(scene, got, o, d, f"{traversal}, {n_tris} triangles")
+        assert np.any(got.tri >= 0)
+
+
 def test_loader_shapes_and_refusals():
     features = SceneFeatures(stack_size=20, near_origin=True)
     defines = build_defines(PACKET, features)

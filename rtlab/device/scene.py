@@ -75,6 +75,7 @@ def cpu_bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
 # traversal not listed reads the kd-tree as built (kd_accel)
 ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "cpu-bvh": cpu_bvh_accel}
 ACCEL_FAMILIES = {"bvh-packet": "cpu-bvh", "bvh-wide": "cpu-bvh"}
+KD_FAMILIES = ("kd", "ropes")                 # the families built on the kd-tree
 
 
 def accel_family(traversal: str) -> str:
@@ -96,10 +97,11 @@ _given_tri_data: dict = {}
 
 
 def host_scene_data(scene: Scene, variants) -> dict:
-    """Everything a device upload of ``scene`` builds on the host for ``variants`` (the kd-tree, each
-    traversal family's arrays, each test's per-triangle rows), to hand to another process
-    (:func:`use_host_scene_data`), which then uploads without building anything."""
-    tree = scene_kdtree(scene)
+    """Everything a device upload of ``scene`` builds on the host for ``variants`` (the kd-tree where
+    one of them reads it, each traversal family's arrays, each test's per-triangle rows), to hand to
+    another process (:func:`use_host_scene_data`), which then uploads without building anything."""
+    variants = list(variants)
+    tree = scene_kdtree(scene) if any(accel_family(v.traversal) in KD_FAMILIES for v in variants) else None
     fingerprint = scene_fingerprint(scene)
     accel, tri_data = {}, {}
     for v in variants:
@@ -115,7 +117,8 @@ def host_scene_data(scene: Scene, variants) -> dict:
 def use_host_scene_data(data: dict) -> None:
     """Take what :func:`host_scene_data` built in another process for the scene it was made for."""
     fp = data["fingerprint"]
-    _given_trees[fp] = data["tree"]
+    if data["tree"] is not None:
+        _given_trees[fp] = data["tree"]
     _given_accel.update({(fp, family): arrays for family, arrays in data["accel"].items()})
     _given_tri_data.update({(fp, test): rows for test, rows in data["tri_data"].items()})
 
@@ -231,7 +234,7 @@ class DeviceArray:
 class DeviceScene:
     backend: object
     scene: Scene
-    tree: KdTree
+    tree: KdTree | None                             # the kd-tree; None until a kd traversal asks (kd_tree)
     arrays: dict                                    # per-scene DeviceArrays: tris, normals, tri_materials
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
     tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray
@@ -241,7 +244,6 @@ class DeviceScene:
 
     @classmethod
     def upload(cls, backend, scene: Scene, tree: KdTree | None = None) -> "DeviceScene":
-        tree = tree if tree is not None else scene_kdtree(scene)
         host = {"tris": triangle_corners(scene), "normals": triangle_normals(scene),
                 "tri_materials": np.ascontiguousarray(scene.material_ids, np.int32)}
         return cls(backend, scene, tree, {name: cls._upload(backend, a) for name, a in host.items()},
@@ -256,11 +258,19 @@ class DeviceScene:
         if family not in self.accel:
             arrays = _given_accel.get((self.fingerprint, family)) if _given_accel else None
             if arrays is None:
-                arrays = ACCEL_BUILDERS.get(family, kd_accel)(self.scene, self.tree)
+                arrays = ACCEL_BUILDERS.get(family, kd_accel)(self.scene, self.kd_tree() if family in KD_FAMILIES
+                                                              else None)
             objects = arrays.objects if arrays.objects.size else np.zeros(1, np.int32)
             self.accel[family] = (arrays, [self._upload(self.backend, a)
                                            for a in (arrays.nodes, arrays.node_data, objects)])
         return self.accel[family]
+
+    def kd_tree(self) -> KdTree:
+        """The scene's kd-tree (the one uploaded with, or the cached build), built when first asked:
+        the BVH traversals (the defaults) read none."""
+        if self.tree is None:
+            self.tree = scene_kdtree(self.scene)
+        return self.tree
 
     def _tri_data(self, intersection: str) -> DeviceArray:
         if intersection not in self.tri_data:
