@@ -546,7 +546,10 @@ class GradingRun:
         return True
 
     def run(self) -> GradeReport:
+        from . import sandbox
         from .checks import KINDS
+        self.notes.append("sandbox: " + (sandbox.describe(self.user) if self.sandboxed else
+                                         f"OFF (${sandbox.SANDBOX_OFF_ENV}): submitted code ran unconfined"))
         self._updated()
         self.tree = build_student_tree(self.config, self.submission, self.work / "submission",
                                        deadline_at=self.deadline_at)
