@@ -277,6 +277,7 @@ class GradingRun:
         self.reference: ReferenceWorker | None = None
         self.reference_lock = threading.Lock()
         self.ref_counts: dict = {}
+        self.first_builds: dict[str, threading.Event] = {}     # a test's program signature -> its binaries taken
         from .trees import has_reference
         self.has_reference = has_reference(config.step)
 
@@ -409,6 +410,17 @@ class GradingRun:
         count = kind.counts_work(spec) and self.has_reference
         job = self.job(spec, count_work=count)
         d = self.test_dir(spec, prepared, job)
+        # a test that builds what a running test is building waits for that one's binaries
+        signature = json.dumps([spec.kind, spec.scene, list(spec.size), count,
+                                {k: v for k, v in spec.params.items() if k not in ("seed", "rays", "count")}],
+                               sort_keys=True, default=str)
+        with self.reference_lock:
+            built = self.first_builds.get(signature)
+            mine = built is None
+            if mine:
+                built = self.first_builds[signature] = threading.Event()
+        if not mine:
+            built.wait(timeout=self.config.setup_limit * 2)
         over = None
         if count:
             def over(work):
@@ -417,8 +429,15 @@ class GradingRun:
                 except ProcessFailed:
                     return False          # check_budget reports it
                 return work_budget_problem(work, reference, float(spec.tolerance["work_budget"])) is not None
-        r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed,
-                     on_ready=lambda: self.builds.take(d / "pocl"), on_work=over)
+        def ready():
+            self.builds.take(d / "pocl")
+            built.set()
+
+        try:
+            r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed, on_ready=ready,
+                         on_work=over)
+        finally:
+            built.set()
         if r.status == "ok":
             r = self.check(spec, kind, prepared, r)
         if count and r.status not in ("compile_error", "error", "skipped", "deadline"):
