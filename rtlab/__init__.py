@@ -2,8 +2,9 @@
 (Shih, Chiu, Chen, Chang, ICA3PP 2009), with CUDA and OpenCL kernels from one source.
 
     import rtlab
-    scene = rtlab.load_scene("bunny")
+    scene = rtlab.load_scene("bunny")                   # or rtlab.scene_from_arrays(vertices, faces)
     hits = rtlab.trace(scene, origins, directions, backend="opencl")
+    o2, d2 = rtlab.spawn_rays(scene, hits, new_directions)   # secondary rays off the hits
     result = rtlab.render(scene, size=256)
 """
 import os
@@ -26,9 +27,12 @@ __version__ = "0.1.0"
 
 def __getattr__(name):
     # Lazy: importing rtlab stays cheap (no numba, trimesh or pyopencl until needed)
-    if name in ("load_scene", "list_scenes"):
+    if name in ("load_scene", "list_scenes", "scene_from_arrays"):
         from . import scene
         return getattr(scene, name)
+    if name in ("spawn_rays", "hit_points"):
+        from .device import spawn
+        return getattr(spawn, name)
     if name == "trace":
         from .device.tracing import trace
         return trace
@@ -44,4 +48,5 @@ def __getattr__(name):
     raise AttributeError(name)
 
 
-__all__ = ["RtlabError", "Variant", "load_scene", "list_scenes", "trace", "camera_rays", "render", "get_backend"]
+__all__ = ["RtlabError", "Variant", "load_scene", "list_scenes", "scene_from_arrays", "trace", "spawn_rays",
+           "hit_points", "camera_rays", "render", "get_backend"]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rtlab.device import kernels
-from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness
+from rtlab.robustness import FAMILY_NAMES, GOALS, family_cases, run_robustness, trace_case
 
 from .conftest import require_scene_file
 
@@ -34,6 +34,12 @@ LEAK_RATE_BOUND = {(1, "moller"): 0.30, (1, "wald"): 0.065, (1, "plucker"): 0.01
 # Mismatches (beyond ties) and false hits of the other tests: none measured on PoCL in families
 # 3-9; a small allowance for devices that contract into fused multiply-adds.
 OTHER_RATE_BOUND = 0.005
+# Family 13 (grazing slivers with blockers 2e-5 of t away) is where the other tests' t errors show:
+# measured on PoCL 3.1, 2026-11-25, mismatches Moller 12.7 %, Plucker 6.7 %, Wald 5.3 % of the made
+# slivers' rays, false hits (a spawned ray back on its sliver) 0.2 % with Moller; bounded at about twice.
+OTHER_RATE_BOUND_BY_FAMILY = {13: 0.3}
+# Families whose test-size cases need a scene file (a case whose file is missing is left out)
+FAMILY_SCENE_FILES = {9: "bunny.ply", 13: "sponza/sponza.obj", 14: "sponza/sponza.obj"}
 
 _rows_cache: dict = {}
 
@@ -42,8 +48,8 @@ def family_rows(backend, family: int):
     """Rows of one family for every test and traversal (run once per backend and family; family 8
     in a child process, so a crash or hang is counted, not fatal)."""
     key = (backend, family)
-    if family == 9:
-        require_scene_file("bunny.ply")      # family 9 leaves out a scene whose file is missing
+    if family in FAMILY_SCENE_FILES:
+        require_scene_file(FAMILY_SCENE_FILES[family])    # the family leaves out a scene whose file is missing
     if key not in _rows_cache:
         _rows_cache[key] = run_robustness(backend, families=[family], size="test", timeout_s=300)
     return _rows_cache[key]
@@ -52,7 +58,8 @@ def family_rows(backend, family: int):
 def _describe(r) -> str:
     return (f"family {r.family} '{r.case}' {r.isect}/{r.traversal} (RT_CONSERVATIVE={r.conservative}): "
             f"{r.rays} rays, leaks {r.leaks}, misses {r.misses}, mismatches {r.mismatches}, ties {r.ties}, "
-            f"false hits {r.false_hits}, NaN t {r.nan_t}, failure '{r.failure}', first bad rays {r.first_bad}")
+            f"differs {r.differs}, false hits {r.false_hits}, NaN t {r.nan_t}, t off {r.t_off}, "
+            f"failure '{r.failure}', first bad rays {r.first_bad}")
 
 
 def _goal_marks(family, traversal):
@@ -66,8 +73,9 @@ def _goal_marks(family, traversal):
 @pytest.mark.parametrize("family,traversal", [pytest.param(f, t, marks=_goal_marks(f, t), id=f"{f}-{FAMILY_NAMES[f]}-{t}")
                                               for f in FAMILIES for t in TRAVERSALS])
 def test_watertight_conservative_meets_goals(backend, family, traversal):
-    """0 leaks/misses (1-2), 0 mismatches beyond ties (3-5, 9), 0 false hits and NaN t (6, 8),
-    no crash or hang (8), for the watertight test with RT_CONSERVATIVE on."""
+    """0 leaks/misses (1-2, 10), 0 mismatches beyond ties (3-5, 9, 10, 12-15), 0 false hits (6, 8, 13,
+    15), no NaN t, no crash or hang, the same ids in every traversal and t within RT_T_ERR of the
+    float64 reference (every traced family), for the watertight test with RT_CONSERVATIVE on."""
     rows = [r for r in family_rows(backend, family) if r.isect == "watertight" and r.traversal == traversal]
     assert rows and all(r.conservative == 1 for r in rows)
     bad = [_describe(r) + f" -> {r.goal_violations()}" for r in rows if r.goal_violations()]
@@ -90,8 +98,52 @@ def test_other_tests_stay_within_measured_rates(backend, family, traversal):
         if bound is not None:
             assert r.leaks <= bound * r.rays, _describe(r)
         elif family not in GOALS["leaks"]:
-            assert r.mismatches <= OTHER_RATE_BOUND * r.rays, _describe(r)
-            assert r.false_hits <= OTHER_RATE_BOUND * r.rays, _describe(r)
+            rate = OTHER_RATE_BOUND_BY_FAMILY.get(family, OTHER_RATE_BOUND)
+            assert r.mismatches <= rate * r.rays, _describe(r)
+            assert r.false_hits <= max(OTHER_RATE_BOUND, rate / 30) * r.rays, _describe(r)
+
+
+def test_refined_t_is_what_keeps_slivers_right(backend):
+    """The suite must be able to fail: family 13's grazing slivers with Woop et al.'s own t
+    (RT_REFINE_T=0) pick the wrong one of a sliver and a blocker 2e-5 of t away, and their t is off
+    by more than RT_T_ERR; with the plane distance in double (the default) neither happens."""
+    from rtlab.robustness import count_case, trace_case, RobustnessRow
+    require_scene_file("sponza/sponza.obj")
+    case = family_cases(13, "test")[0]
+    counts = {}
+    for refine in (0, 1):
+        tri, t, _ = trace_case(case, backend, "watertight", "stack", RT_REFINE_T=refine)
+        row = count_case(case, case.reference(), tri, t, RobustnessRow(13, case.label, "watertight", "stack", 1,
+                                                                       backend.name, backend.device_name, case.n_rays))
+        counts[refine] = (row.mismatches, row.t_off)
+    assert counts[1] == (0, 0) and counts[0][0] > 0 and counts[0][1] > case.n_rays // 10, counts
+
+
+@pytest.mark.parametrize("traversal", ["stack", "bvh", "bvh-packet"])
+def test_tmin_just_before_a_grazing_sliver_keeps_it(backend, traversal):
+    """Family 13's made slivers at grazing angles, traced with tmin 2e-5 of t before the float64 hit
+    (the sliver must be hit) and 2e-5 after it (it must not be), on the rays where the kernel names
+    the reference's triangle (the others graze an edge: ties): Woop et al.'s t, off by up to 0.5 %
+    there, dropped hits just beyond tmin; the plane distance in double keeps every one."""
+    from rtlab.device.kernels import Variant
+    from rtlab.device.tracing import trace
+    require_scene_file("sponza/sponza.obj")
+    case = family_cases(13, "test")[0]
+    ref = case.reference()
+    variant = Variant(traversal, "watertight")
+    full = trace(case.scene, case.origins, case.directions, backend=backend, variant=variant)
+    hit = np.flatnonzero((ref.tri >= 0) & (full.tri == ref.tri))
+    assert hit.size > 0.9 * np.sum(ref.tri >= 0)
+    o, d, t_ref, want = case.origins[hit], case.directions[hit], ref.t[hit], ref.tri[hit]
+    lost = {}
+    for refine in (1, 0):
+        before = trace(case.scene, o, d, backend=backend, variant=variant, tmin=t_ref * (1 - 2e-5),
+                       defines={"RT_REFINE_T": refine})
+        after = trace(case.scene, o, d, backend=backend, variant=variant, tmin=t_ref * (1 + 2e-5),
+                      defines={"RT_REFINE_T": refine})
+        lost[refine] = (int(np.sum(before.tri != want)), int(np.sum(after.tri == want)))
+    assert lost[1] == (0, 0), f"{traversal}: {lost[1][0]} hits dropped just beyond tmin, {lost[1][1]} kept before it"
+    assert sum(lost[0]) > 0, "Woop's own t should get some of these wrong (the test would not notice a regression)"
 
 
 def test_leaks_are_the_lesson(backend):
@@ -202,3 +254,45 @@ def test_direction_length_changes_nothing(backend):
     bad = [_describe(r) + f", max rel dt {r.t_rel_err_max:.1e}" for r in rows
            if r.failure or r.mismatches or not r.t_rel_err_max <= 1e-3]
     assert not bad, "\n".join(bad)
+
+
+# ---- families 13-15: which hit the closest-hit choice takes ------------------------------------
+def test_every_traversal_returns_the_brute_force_ids_at_ties(backend):
+    """Families 14 (SPONZA: rays exactly through vertices on kd split planes with triangles on both
+    sides, exactly through shared edges, at coplanar copies and halves at random ids) and 13 (grazing
+    slivers with blockers): every traversal returns, ray for ray, the triangle and the t of the brute
+    force in the kernels' own arithmetic (every triangle in a loop, closer_hit's tie rule), for the
+    watertight test. The kd traversals culled the far cell at the unpadded hit t and lost the lower id
+    there, the BVH packet a box entered at that t."""
+    from rtlab.device.probes import probe_brute_force
+    require_scene_file("sponza/sponza.obj")
+    cases = family_cases(14, "test") + family_cases(13, "test")[:1]
+    for case in cases:
+        brute = probe_brute_force(case.scene, backend, case.origins, case.directions, "watertight")
+        assert np.mean(brute.tri >= 0) > 0.5, case.label
+        for traversal in TRAVERSALS:
+            tri, t, _ = trace_case(case, backend, "watertight", traversal)
+            wrong = np.flatnonzero((tri != brute.tri) | ((tri >= 0) & (t != brute.t)))
+            assert wrong.size == 0, (f"{case.label}, {traversal}: {wrong.size} of {case.n_rays} rays differ from the "
+                                     f"brute force, e.g. ray {wrong[0]}: triangle {tri[wrong[0]]} at t {t[wrong[0]]!r}, "
+                                     f"brute force {brute.tri[wrong[0]]} at {brute.t[wrong[0]]!r}")
+
+
+@pytest.mark.gpu
+def test_gpu_closest_hit_families_on_cuda_and_nvidia_opencl():
+    """On the GPU machine (fused multiply-adds, NVIDIA's 2.5-ulp reciprocal in OpenCL): families 13-15
+    meet the watertight goals with every traversal on both backends, and both name the same triangles."""
+    from rtlab.backends import get_backend
+    require_scene_file("sponza/sponza.obj")
+    backends = [get_backend("cuda"), get_backend("opencl", "NVIDIA")]
+    ids = {}
+    for be in backends:
+        rows = run_robustness(be, ["watertight"], None, families=[13, 14, 15], size="test", isolate=())
+        bad = [_describe(r) + f" -> {r.goal_violations()}" for r in rows if r.goal_violations()]
+        assert not bad, "\n".join(bad)
+        for family in (13, 14, 15):
+            for ci, case in enumerate(family_cases(family, "test")):
+                ids[be.name, family, ci] = trace_case(case, be, "watertight", "bvh")[0]
+    for key in [k for k in ids if k[0] == "cuda"]:
+        other = ids[("opencl",) + key[1:]]
+        assert np.array_equal(ids[key], other), f"family {key[1]} case {key[2]}: {np.sum(ids[key] != other)} rays differ"

@@ -489,3 +489,103 @@ def test_tiny_mesh_file_warns_at_load(tmp_path, private_cache):
     path = _write(tmp_path, "tiny.ply", _ply([(0, 0, 0), (1e-14, 0, 0), (0, 1e-14, 0)], [(0, 1, 2)]))
     with pytest.warns(ScaleWarning, match=str(path.stem)):
         load_scene(str(path), size=16)
+
+
+# ---- a scene from arrays, and what float32 can hold where an object lies ---------------------
+
+def _unit_box(offset=0.0):
+    import trimesh
+    box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+    return box.vertices + offset, box.faces
+
+
+def test_scene_from_arrays_in_one_call():
+    """(vertices, faces) alone make a scene that renders: one material, a camera with the whole mesh
+    in view, a light above; a trimesh works as well (rtlab.scene_from_arrays, Scene.from_mesh)."""
+    import trimesh
+    import warnings
+    import rtlab
+    from rtlab.scene.model import camera_rays
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
+    mesh.apply_translation([10.0, -3.0, 4.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = rtlab.scene_from_arrays(mesh.vertices, mesh.faces.tolist(), size=48)
+    assert scene.n_triangles == len(mesh.faces) and scene.vertices.dtype == np.float32
+    assert len(scene.materials) == 1 and np.all(scene.material_ids == 0) and len(scene.lights) == 1
+    assert scene.camera.width == scene.camera.height == 48
+    # every vertex projects inside the image, and the middle pixel sees the sphere
+    eye, u, v, w = [x.astype(np.float64) for x in scene.camera.basis()]
+    rel = mesh.vertices - eye
+    depth = rel @ w
+    assert np.all(depth > 0)
+    assert np.all(np.abs(rel @ u / (depth * np.dot(u, u))) < 1) and np.all(np.abs(rel @ v / (depth * np.dot(v, v))) < 1)
+    light = np.asarray(scene.lights[0].position)
+    assert light[1] > mesh.vertices[:, 1].max()
+    from rtlab.reference import reference_trace
+    o, d = camera_rays(scene.camera)
+    ref = reference_trace(scene.vertices, scene.faces, o, d)
+    assert ref.tri[(24 * 48) + 24] >= 0 and 0.05 < np.mean(ref.tri >= 0) < 0.95
+    same = Scene.from_mesh(mesh, size=48)
+    assert np.array_equal(same.vertices, scene.vertices) and np.array_equal(same.faces, scene.faces)
+    mats = [Material("a"), Material("b", diffuse=(1, 0, 0))]
+    two = rtlab.scene_from_arrays(mesh, materials=mats, material_ids=np.arange(len(mesh.faces)) % 2)
+    assert two.materials == mats and two.material_ids[1] == 1
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 3]]), "refers to a vertex that does not exist"),
+    (dict(vertices=[[0, 0, 0], [1, np.nan, 0], [0, 1, 0]], faces=[[0, 1, 2]]), "vertex 1 .* must be finite"),
+    (dict(vertices=[[0, 0], [1, 0], [0, 1]], faces=[[0, 1, 2]]), r"shape \(V, 3\)"),
+    (dict(vertices=[["a", "b", "c"]] * 3, faces=[[0, 1, 2]]), "must hold real numbers"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0.0, 1.0, 2.0]]), "faces must hold integers"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]]), "needs faces"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]], material_ids=[1]), "need the materials"),
+])
+def test_scene_from_arrays_says_what_is_wrong(kw, message):
+    import rtlab
+    with pytest.raises(SceneError, match=message):
+        rtlab.scene_from_arrays(**kw)
+
+
+def test_objects_too_small_for_their_distance_from_the_origin_warn():
+    """A unit box at 1e8 collapses to a point in float32; at 1e6 a ray leaving it starts 0.7 off its
+    surface: both warn with the numbers (the old check looked only at |coordinates| > 1e13). A unit box
+    at 1e3, a 40-wide floor at 1e6 beside nothing small, and the real scenes do not warn."""
+    import warnings
+    import rtlab
+    from rtlab.scene.model import ScaleWarning
+    from rtlab.scene.scale import object_scale_warnings
+    with pytest.warns(ScaleWarning) as caught:
+        rtlab.scene_from_arrays(*_unit_box(1e8))
+    text = " ".join(str(w.message) for w in caught)
+    assert "12 of 12 triangles (the first is triangle 0) have an area in the given coordinates but none once" in text
+    assert "collapsed to zero area" in text and "float32 spacing is 8" in text
+    with pytest.warns(ScaleWarning, match=r"an object of 12 triangles .* 1\.73 across, reaches 1e\+06 .* spacing is "
+                                          r"0\.0625: a ray leaving it starts up to 0\.723 off its surface \(42 %"):
+        scene = rtlab.scene_from_arrays(*_unit_box(1e6))
+    assert any("off its surface" in w for w in scene_warnings(scene))
+    floor_v = np.array([[-20, 0, -20], [-20, 0, 20], [20, 0, 20], [20, 0, -20]], np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScaleWarning)
+        rtlab.scene_from_arrays(*_unit_box(1e3))
+        rtlab.scene_from_arrays(floor_v * 100 + 1e5, [[0, 1, 2], [0, 2, 3]])
+        for name in ("bunny", "sponza"):
+            if find_scene_file(PRESETS[name].relpath) is not None:
+                s = load_scene(name, size=16)
+                assert object_scale_warnings(s.vertices, s.faces, name) == []
+    v, f = _unit_box(1e6)
+    both = object_scale_warnings(np.concatenate([v, floor_v * 100 + 1e6]),
+                                 np.concatenate([f, len(v) + np.array([[0, 1, 2], [0, 2, 3]])]), "two")
+    assert len(both) == 1 and "an object of 12 triangles" in both[0]
+
+
+def test_vertex_components_join_triangles_by_shared_vertices():
+    from rtlab.scene.scale import vertex_components
+    faces = np.array([[0, 1, 2], [2, 3, 4], [5, 6, 7], [8, 9, 10], [10, 7, 11]])
+    label = vertex_components(13, faces)
+    assert len(set(label[[0, 1, 2, 3, 4]])) == 1 and len(set(label[[5, 6, 7, 8, 9, 10, 11]])) == 1
+    assert label[0] != label[5] and label[12] == 12
+    rng = np.random.default_rng(3)
+    chain = np.stack([np.arange(2000), np.arange(1, 2001), np.arange(2, 2002)], 1)[rng.permutation(2000)]
+    assert np.all(vertex_components(2002, chain) == 0)

@@ -131,3 +131,110 @@ def test_cuda_launch_time_leaves_out_the_host():
     r = trace(scene, o, d, be, Variant(traversal="bvh"), repeats=20, warmup=3)
     assert not r.hit.any()
     assert r.kernel_ms < 0.010, f"{n} rays that miss the scene's box took {r.kernel_ms * 1e3:.1f} us of device time"
+
+
+# ---- what trace() is given ---------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def sphere_scene():
+    import trimesh
+    return rtlab.scene_from_arrays(trimesh.creation.icosphere(subdivisions=2, radius=1.0), name="sphere")
+
+
+RAYS_O = np.array([[0.0, 0.0, 5.0], [0.3, 0.2, 5.0], [9.0, 9.0, 5.0]])
+RAYS_D = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+
+
+@pytest.mark.parametrize("kw,message", [
+    (dict(tmin=None), "tmin must be a number"),
+    (dict(tmin=np.nan), r"tmin must be a finite number >= 0, got nan \(ray 0\)"),
+    (dict(tmin=np.inf), "tmin must be a finite number"),
+    (dict(tmin=np.array([0.0, np.nan, 0.0])), r"\(ray 1\)"),
+    (dict(tmax=None), "tmax must be a number"),
+    (dict(tmax=np.nan), r"tmax must be a number \(numpy.inf for no limit\), got nan"),
+    (dict(tmin=2.0, tmax=1.0), r"tmax must be >= tmin, got tmin 2 and tmax 1 \(ray 0\)"),
+    (dict(tmax="far"), "tmax must hold real numbers"),
+    (dict(tmin=-1.0), "tmin must be >= 0"),
+])
+def test_bad_ray_intervals_are_errors(backend, sphere_scene, kw, message):
+    """None and NaN passed the old check and every ray missed (the docstring promised an error)."""
+    with pytest.raises(rtlab.RtlabError, match=message):
+        trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, **kw)
+
+
+def test_an_empty_interval_misses_and_inf_is_no_limit(backend, sphere_scene):
+    got = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, tmin=1.0, tmax=1.0)
+    assert np.all(got.tri < 0)
+    assert trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, tmax=np.inf).tri[:2].min() >= 0
+
+
+@pytest.mark.parametrize("bad,kind", [
+    (RAYS_D.astype(complex), "complex numbers"), (RAYS_D.astype(str), "strings"),
+    (np.array([[0, 0, None]] * 3), "Python objects"), (RAYS_D.astype(bool), "booleans"),
+    ([["a", "b", "c"]] * 3, "strings")])
+def test_non_numeric_arrays_are_errors(backend, sphere_scene, bad, kind):
+    """Complex, string and object arrays ended in ComplexWarning/ValueError deep inside."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(rtlab.RtlabError, match=f"directions must hold real numbers .*{kind}"):
+            trace(sphere_scene, RAYS_O, bad, backend=backend)
+        with pytest.raises(rtlab.RtlabError, match=f"origins must hold real numbers .*{kind}"):
+            trace(sphere_scene, bad, RAYS_D, backend=backend)
+
+
+def test_a_scene_given_by_name_says_how_to_load_it(backend):
+    with pytest.raises(rtlab.RtlabError, match=r"scene must be an rtlab Scene, got str 'bunny'.*rtlab.load_scene\('bunny'\)"):
+        trace("bunny", RAYS_O, RAYS_D, backend=backend)
+    with pytest.raises(rtlab.RtlabError, match="scene must be an rtlab Scene, got ndarray"):
+        trace(RAYS_O, RAYS_O, RAYS_D, backend=backend)
+
+
+def test_a_variant_given_by_name_keeps_the_default_test(backend, sphere_scene):
+    """variant="bvh" is the default variant with the BVH traversal (the watertight test stays);
+    "bvh/moller" names both; an unknown name is a VariantError listing the names."""
+    from rtlab.device.tracing import default_variant, resolve_variant
+    from rtlab.errors import VariantError
+    assert resolve_variant("bvh", backend) == default_variant(backend).with_(traversal="bvh")
+    assert resolve_variant("bvh", backend).intersection == "watertight"
+    assert resolve_variant("BVH/Moller", backend) == default_variant(backend).with_(traversal="bvh", intersection="moller")
+    assert resolve_variant("plucker", backend).intersection == "plucker"
+    ref = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, variant=Variant("bvh", "watertight"))
+    got = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, variant="bvh")
+    assert np.array_equal(got.tri, ref.tri) and np.array_equal(got.t, ref.t)
+    for bad in ("bvhx", "bvh/stack", "a/b/c", ""):
+        with pytest.raises(VariantError, match="traversal"):
+            trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, variant=bad)
+    with pytest.raises(VariantError, match="Variant or a name"):
+        trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, variant=5)
+
+
+@pytest.mark.parametrize("length", [1e-300, 1e-45, 1e-40, 1e39, 1e300])
+def test_directions_are_rescaled_in_their_own_dtype(backend, sphere_scene, length):
+    """float64 directions beyond float32's range became inf or 0 before the power-of-two rescaling
+    (every ray a silent miss), and a float32 subnormal direction returned a hit at t = inf. Now the
+    hits are those of the unit directions and t * |d| the same distance (t float64 where it leaves
+    float32's range)."""
+    unit = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend)
+    assert unit.tri[:2].min() >= 0 and unit.tri[2] < 0
+    for dtype in (np.float64, np.float32):
+        d = RAYS_D.astype(np.float64) * length
+        if dtype == np.float32 and not np.finfo(np.float32).smallest_subnormal <= length <= np.finfo(np.float32).max:
+            continue
+        d = d.astype(dtype)
+        assert np.any(d != 0)
+        got = trace(sphere_scene, RAYS_O, d, backend=backend)
+        assert np.array_equal(got.tri, unit.tri), f"length {length:g} {np.dtype(dtype).name}: {got.tri} vs {unit.tri}"
+        hit = got.tri >= 0
+        dh = d[hit].astype(np.float64)
+        big = np.abs(dh).max(axis=1, keepdims=True)              # |d| without squares that underflow
+        dist = got.t[hit].astype(np.float64) * (np.linalg.norm(dh / big, axis=1) * big[:, 0])
+        np.testing.assert_allclose(dist, unit.t[hit], rtol=1e-6)
+        assert np.all(np.isfinite(got.t[hit]))
+
+
+def test_an_origin_beyond_float32_is_an_error(backend, sphere_scene):
+    with pytest.raises(rtlab.RtlabError, match=r"origin of ray 1 .* beyond float32's range"):
+        trace(sphere_scene, RAYS_O * np.array([[1], [1e39], [1]]), RAYS_D, backend=backend)
+    nan_o = RAYS_O.copy()
+    nan_o[0] = np.nan                                    # NaN and inf origins stay misses, as documented
+    assert trace(sphere_scene, nan_o, RAYS_D, backend=backend).tri[0] < 0

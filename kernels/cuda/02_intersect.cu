@@ -19,3 +19,15 @@ RT_KERNEL void intersect_triangles(RT_SCENE_PARAMS, float4 *__restrict__ hits, i
     intersect_first_tris(RT_SCENE_ARGS, &ray, n_tris, &hit);
     hits[y * c_frame.width + x] = pack_hit(hit);
 }
+
+// Closest hit of arbitrary rays (origins (x, y, z, tmin), directions (x, y, z, tmax)) among triangles
+// [0, n_tris), no acceleration structure: the brute force every traversal is checked against
+// (rtlab.device.probes.probe_brute_force).
+RT_KERNEL void trace_rays_loop(RT_SCENE_PARAMS, const float4 *__restrict__ origins, const float4 *__restrict__ directions,
+                               float4 *__restrict__ hits, int n_rays, int n_tris)
+{
+    int i = blockIdx.x * blockDim.x + threadIdx.x;
+    if (i >= n_rays)
+        return;
+    hits[i] = pack_hit(trace_one_loop(RT_SCENE_ARGS, origins[i], directions[i], n_tris));
+}

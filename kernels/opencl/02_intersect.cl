@@ -18,3 +18,16 @@ __kernel void intersect_triangles(RT_SCENE_PARAMS, __global float4 *restrict hit
     intersect_first_tris(RT_SCENE_ARGS, &ray, n_tris, &hit);
     hits[y * frame->width + x] = pack_hit(hit);
 }
+
+// Closest hit of arbitrary rays (origins (x, y, z, tmin), directions (x, y, z, tmax)) among triangles
+// [0, n_tris), no acceleration structure: the brute force every traversal is checked against
+// (rtlab.device.probes.probe_brute_force).
+__kernel void trace_rays_loop(RT_SCENE_PARAMS, __global const float4 *restrict origins,
+                              __global const float4 *restrict directions, __global float4 *restrict hits, int n_rays,
+                              int n_tris)
+{
+    int i = get_global_id(0);
+    if (i >= n_rays)
+        return;
+    hits[i] = pack_hit(trace_one_loop(RT_SCENE_ARGS, origins[i], directions[i], n_tris));
+}

@@ -101,9 +101,9 @@ RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
     return rt_as_float(rt_imin(rt_imin(rt_imin(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(t_hit)));
 }
 
-/* Whether the ray's segment meets the child box [lo, hi] before the closest hit so far; its entry
- * distance in *t_enter. Inclusive at hit->t: a box entered exactly there may hold a lower-id
- * triangle at the same t (closer_hit). The ray passed the scene box's clip_ray_box, so it can
+/* Whether the ray's segment meets the child box [lo, hi] before the closest hit so far, t_hit; its
+ * entry distance in *t_enter. Inclusive up to t_cull(t_hit): a box entered exactly at the hit may
+ * hold a lower-id triangle at the same t (closer_hit), and both distances carry rounding. The ray passed the scene box's clip_ray_box, so it can
  * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
  * else the exact (b - o) * inv_d of clip_entering_ray_box (scenes far from the origin). */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
@@ -114,13 +114,13 @@ RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, f
 {
 #if !RT_BVH_BOX_FMA
     float t_exit;
-    return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_hit;
+    return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_cull(t_hit);
 #else
     float lx = rt_fma(lo.x, r->inv.x, -r->o_lo.x), hx = rt_fma(hi.x, r->inv.x, -r->o_hi.x);
     float ly = rt_fma(lo.y, r->inv.y, -r->o_lo.y), hy = rt_fma(hi.y, r->inv.y, -r->o_hi.y);
     float lz = rt_fma(lo.z, r->inv.z, -r->o_lo.z), hz = rt_fma(hi.z, r->inv.z, -r->o_hi.z);
     float t0 = bvh_span_enter(rt_min(lx, hx), rt_min(ly, hy), rt_min(lz, hz), r->tmin);
-    float t1 = bvh_span_exit(rt_max(lx, hx), rt_max(ly, hy), rt_max(lz, hz), t_hit);
+    float t1 = bvh_span_exit(rt_max(lx, hx), rt_max(ly, hy), rt_max(lz, hz), t_cull(t_hit));
 #if RT_CONSERVATIVE
     t1 *= RT_BVH_EXIT_SCALE;
 #endif

@@ -29,8 +29,10 @@
  * loader allows the fused form (RT_BVH_BOX_FMA); lanes without a ray are parked (RayPacket). With
  * RT_CONSERVATIVE the inverse is the exact 1/d, a 0 * inf of a ray in a box's plane is taken as the
  * slab's unbounded side (clip_slab's fmin/fmax rule), and the far distance is widened by its
- * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Moller-Trumbore runs on the
- * lanes; the other triangle tests run lane by lane through the shared intersect_tri.
+ * rounding bound RT_T_PAD (Ize 2013), as clip_entering_ray_box does. Boxes are culled against t_cull
+ * of each lane's closest hit (lf_t_cull), the pad every traversal uses, so a tie at equal t is kept.
+ * Moller-Trumbore runs on the lanes; the other triangle tests run lane by lane through the shared
+ * intersect_tri.
  */
 #ifndef RT_BVH_PACKET_H
 #define RT_BVH_PACKET_H
@@ -174,6 +176,12 @@ RT_FN void packet_slab(float lo, float hi, lanef o, lanef inv, lanef o_near, lan
     *t1 = lf_select(far, lf_select(minus_inf, inf, inside), z);
 }
 
+/* t_cull (rt_intersect.h) lane by lane: the closest hit's t widened by its rounding pad, -inf kept */
+RT_FN lanef lf_t_cull(lanef t)
+{
+    return lf_max(lf_mul(t, lf_splat(1.0f + RT_T_PAD)), lf_mul(t, lf_splat(1.0f - RT_T_PAD)));
+}
+
 /* Lanes whose segment [tmin, t_cut] meets the box [lo, hi] (inclusive at t_cut, as rt_bvh.h);
  * their entry distances in *t_near. */
 RT_FN lanei packet_hits_box(const RayPacket *p, lanef t_cut, float4 lo, float4 hi, lanef *t_near)
@@ -282,8 +290,9 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
     int stack[RT_STACK_SIZE];
     int sp = 0;
     int ref = 0;
-    /* Box tests cull beyond t_cut: the closest hit so far, or -inf for a lane that is done */
-    lanef t_cut = h->t;
+    /* Box tests cull beyond t_cut: t_cull of the closest hit so far (the scalar traversals' pad),
+     * or -inf for a lane that is done */
+    lanef t_cut = lf_t_cull(h->t);
     lanef inf = lf_splat(RT_INF);
     for (;;) {
         /* Inner nodes: enter the children some lane hits, the one a lane enters first first; the
@@ -330,9 +339,9 @@ RT_FN void traverse_bvh_packet(RT_SCENE_PARAMS, const RayPacket *p, HitPacket *h
             live = li_andnot(live, found);
             if (!lane_any(live))
                 return;
-            t_cut = lf_select(lf_splat(-RT_INF), h->t, live);
+            t_cut = lf_select(lf_splat(-RT_INF), lf_t_cull(h->t), live);
         } else {
-            t_cut = h->t;
+            t_cut = lf_t_cull(h->t);
         }
         if (sp == 0)
             return;

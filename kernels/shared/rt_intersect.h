@@ -24,6 +24,21 @@
  * (NVIDIA OpenCL's 1/x may be off by 2.5 ulp without -cl-fp32-correctly-rounded-divide-sqrt). */
 #define RT_T_PAD (16.0f * 5.9604645e-8f)
 
+/* Relative error bound of a triangle distance the closest-hit choice compares: 2 ulps (4u) for the
+ * watertight test's plane_t_fp64 (RT_REFINE_T). The tests without that bound (Moller, Wald, Plucker,
+ * the watertight test's float-only form) can err by more on small triangles far away or slivers at
+ * grazing angles; there the tie rule below holds only as far as their t is right. */
+#define RT_T_ERR (4.0f * 5.9604645e-8f)
+
+/* The tie rule's reach (closer_hit, rt_types.h): a cell or box whose entry distance lies beyond
+ * t_cull(hit->t) holds no triangle that could beat the hit, one at the same t on a lower id included.
+ * An entry distance errs by up to ~7u (three roundings, a reciprocal good to 2.5 ulps) and a triangle's
+ * t by RT_T_ERR, so the hit's t is widened by RT_T_PAD (16u) before a cell or box is culled against
+ * it, in every traversal and for every test: culling at the unpadded t gave a tie at equal t to
+ * different triangles in different traversals (a vertex on a kd split plane, a box entered at the
+ * hit's t). max() of the two products widens t of either sign and keeps +-inf. */
+RT_FN float t_cull(float t_hit) { return rt_max(t_hit * (1.0f + RT_T_PAD), t_hit * (1.0f - RT_T_PAD)); }
+
 /* Precomputed triangle data in tri_data, float4 rows per triangle (sync with rtlab/accel/tri_data.py). */
 #define RT_WALD_ROWS 3
 #define RT_PLUCKER_ROWS 6
@@ -142,6 +157,37 @@ RT_FN int intersect_ray_tri_plucker(const Ray *ray, const TriPlucker *acc, int t
 /* Components of a in the order (kx, ky, kz). */
 RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx), get3(a, ky), get3(a, kz)); }
 
+/* The watertight test's distance: RT_REFINE_T 1 (the default where the device has doubles) takes
+ * plane_t_fp64's, 0 Woop et al.'s scaled-barycentric t (kept to measure what the refinement costs). */
+#ifndef RT_REFINE_T
+#define RT_REFINE_T RT_HAS_FP64
+#endif
+#if RT_REFINE_T && !RT_HAS_FP64
+#error "RT_REFINE_T needs double precision (RT_HAS_FP64)"
+#endif
+
+#if RT_HAS_FP64
+/* Distance along the ray o + t d to the plane of (v0, v1, v2): t = n.(v0 - o) / n.d with
+ * n = (v1 - v0) x (v2 - v0), in double. Woop et al.'s t, sum of the scaled barycentrics times the
+ * vertices' depths, is off by the barycentrics' rounding times the triangle's depth range: -0.6 %
+ * on a 3.3 x 0.013 sliver seen at |cos| = 0.002. Here the float differences are exact in double
+ * and so are the cross product's products (24-bit by 24-bit), so n is exact but for one rounding
+ * a component, and the two dot products err by a few double ulps over the cosine of the angle the
+ * ray (and v0 - o) make with the plane: t lands within an ulp of float of the exact distance down
+ * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. Pure and branch-free, so a lane version is
+ * the same expressions on double lanes. A ray parallel to the plane gives an inf or NaN t, which
+ * closer_hit() rejects. */
+RT_FN float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
+{
+    double ax = (double)v1.x - (double)v0.x, ay = (double)v1.y - (double)v0.y, az = (double)v1.z - (double)v0.z;
+    double bx = (double)v2.x - (double)v0.x, by = (double)v2.y - (double)v0.y, bz = (double)v2.z - (double)v0.z;
+    double nx = ay * bz - az * by, ny = az * bx - ax * bz, nz = ax * by - ay * bx;
+    double num = nx * ((double)v0.x - (double)o.x) + ny * ((double)v0.y - (double)o.y) + nz * ((double)v0.z - (double)o.z);
+    double den = nx * (double)d.x + ny * (double)d.y + nz * (double)d.z;
+    return (float)(num / den);
+}
+#endif
+
 /* Woop, Benthin & Wald, "Watertight Ray/Triangle Intersection", JCGT 2(1), 2013. Vertices are
  * moved to the ray origin and sheared so that the ray runs along +z; the 2D edge functions U, V, W
  * of the sheared vertices then depend on the edge's two corners only, so the triangles of a shared
@@ -188,9 +234,15 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
     float det = u + v + w;
     if (det == 0.0f)
         return 0;
+#if RT_REFINE_T
+    /* The edge functions decide whether; the plane decides where (plane_t_fp64) */
+    float t = plane_t_fp64(ray->o, ray->d, v0, v1, v2);
+    float inv_det = 1.0f / det;
+#else
     float tz = u * (sz * a.z) + v * (sz * b.z) + w * (sz * c.z);
     float inv_det = 1.0f / det;
     float t = tz * inv_det;
+#endif
     if (!closer_hit(ray, t, tri, hit))
         return 0;
     hit->t = t;
@@ -253,9 +305,12 @@ RT_FN void clip_slab(float lo, float hi, float o, float inv_d, float inv_far, fl
 /* Recompute the closest hit's distance from the triangle's plane, t = n.(v0 - o) / n.d with
  * n = e1 x e2. Moller-Trumbore's t = e2.(s x e1) / det cancels badly when the origin is far from a
  * small triangle seen at a grazing angle (1.8e-5 relative on SPONZA); the plane form stays near
- * float32 rounding. Done once per ray, so the intersection loop is unchanged. */
+ * float32 rounding. Done once per ray, so the intersection loop is unchanged. The watertight test
+ * with RT_REFINE_T compares plane_t_fp64's distance already, which this float form would only
+ * degrade: left as it is. */
 RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
 {
+#if !(RT_ISECT == RT_ISECT_WATERTIGHT && RT_REFINE_T)
     if (hit->tri < 0)
         return;
     float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
@@ -263,6 +318,7 @@ RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
     float t = dot3(n, sub3(v0, ray->o)) / dot3(n, ray->d);
     if (t > ray->tmin && t < ray->tmax)
         hit->t = t;
+#endif
 }
 
 /* Whether the ray can enter any box: finite origin and direction, a non-zero direction. */

@@ -162,8 +162,9 @@ RT_FN void traverse_kd_restart(RT_SCENE_PARAMS, float4 scene_min, float4 scene_m
             continue;
         KdSegment seg = kd_segment(t_enter, t_exit);
         /* Restart from the root until the segment is used up or a hit lies inside the current
-         * cell (a hit on its exit face may tie with a lower-id triangle in the next) */
-        while (seg.tmin <= hit->t) {
+         * cell, by more than the rounding pad t_cull (a hit on its exit face may tie with a
+         * lower-id triangle in the next) */
+        while (seg.tmin <= t_cull(hit->t)) {
             int2 n = load_node(nodes, 0);
             while (!kd_is_leaf(n)) {
                 int far;
@@ -173,7 +174,7 @@ RT_FN void traverse_kd_restart(RT_SCENE_PARAMS, float4 scene_min, float4 scene_m
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)
                 return;
-            if (hit->t < seg.tmax || !kd_next_restart(&seg, t_exit))
+            if (t_cull(hit->t) < seg.tmax || !kd_next_restart(&seg, t_exit))
                 break;
         }
     }

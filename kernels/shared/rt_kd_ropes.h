@@ -110,7 +110,7 @@ RT_FN void traverse_kd_ropes(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
         KdSegment seg = kd_segment(t_enter, t_exit);
         float tmin = t_enter, t_root = t_enter;
         int node = 0, from_root = 1;
-        while (tmin <= hit->t) {
+        while (tmin <= t_cull(hit->t)) {
             /* Descend: from the root in kd-restart order, or from a rope's node to the exit point */
             int2 n = load_node(nodes, node);
             while (!kd_is_leaf(n)) {
@@ -130,7 +130,7 @@ RT_FN void traverse_kd_ropes(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
             if (from_root && seg.tmax <= t_root) {
                 /* A leaf ending by t_root (touched only at tmin, or inside an edge's tie range):
                  * the next leaf, from the root as in kd-restart */
-                if (hit->t < seg.tmax || !kd_next_restart(&seg, t_exit))
+                if (t_cull(hit->t) < seg.tmax || !kd_next_restart(&seg, t_exit))
                     break;
                 node = 0;
                 continue;
@@ -141,7 +141,7 @@ RT_FN void traverse_kd_ropes(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
             int face;
             float t_corner;
             float t_leave = exit_leaf_box(ray, lo, hi, &face, &t_corner);
-            if (hit->t < t_leave || t_leave >= t_exit)
+            if (t_cull(hit->t) < t_leave || t_leave >= t_exit)
                 break;
             tmin = rt_max(tmin, t_leave);
             from_root = t_corner >= t_leave && tmin > t_root;

@@ -35,7 +35,7 @@ RT_FN void traverse_kd_shortstack(RT_SCENE_PARAMS, float4 scene_min, float4 scen
         int top = 0, count = 0;          /* ring: stack[top] is the newest of count entries */
         int node = 0;
         KdSegment seg = kd_segment(t_enter, t_exit);
-        while (seg.tmin <= hit->t) {
+        while (seg.tmin <= t_cull(hit->t)) {
             int2 n = load_node(nodes, node);
             /* Descend, pushing far cells; a full ring forgets its oldest entry */
             while (!kd_is_leaf(n)) {
@@ -53,7 +53,7 @@ RT_FN void traverse_kd_shortstack(RT_SCENE_PARAMS, float4 scene_min, float4 scen
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
             if (any_hit && hit->tri >= 0)
                 return;
-            if (hit->t < seg.tmax)
+            if (t_cull(hit->t) < seg.tmax)
                 break;
             if (count > 0) {
                 node = stack[top].node;

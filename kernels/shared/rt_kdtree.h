@@ -103,9 +103,10 @@ RT_FN void traverse_kd_stack(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max
             n = load_node(nodes, node);
         }
         intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);
-        /* Done when no pending cell starts before or at the hit (one starting at it may hold a
-         * lower-id triangle at the same t): the stack holds every unvisited cell the ray crosses */
-        if (sp == 0 || hit->t < stack[sp - 1].t_stop || (any_hit && hit->tri >= 0))
+        /* Done when no pending cell starts before or at the hit, up to the rounding pad t_cull
+         * (one starting at it may hold a lower-id triangle at the same t): the stack holds every
+         * unvisited cell the ray crosses */
+        if (sp == 0 || t_cull(hit->t) < stack[sp - 1].t_stop || (any_hit && hit->tri >= 0))
             return;
         --sp;
         node = stack[sp].node;

@@ -110,7 +110,7 @@ RT_FN void traverse_kd_packet(RT_SCENE_PARAMS, float4 scene_min, float4 scene_ma
         int2 n = load_node(nodes, node);
         int first = -1, second = -1, visit = 0;
         float t_split = 0.0f;
-        live = live && tmin <= hit->t && !(any_hit && hit->tri >= 0);
+        live = live && tmin <= t_cull(hit->t) && !(any_hit && hit->tri >= 0);
         /* Work on this node where the ray's segment needs it: test a leaf, or vote */
         if (live && kd_is_leaf(n)) {
             intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);

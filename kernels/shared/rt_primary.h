@@ -26,6 +26,19 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
     return closest_hit(RT_SCENE_ARGS, frame, &ray);
 }
 
+/* Closest hit of one ray among triangles [0, n_tris), no acceleration structure, its distance
+ * refined as closest_hit's: the brute force in the kernels' own arithmetic that every traversal must
+ * match, ties included (lab step 02's trace_rays_loop). */
+RT_FN Hit trace_one_loop(RT_SCENE_PARAMS, float4 origin, float4 direction, int n_tris)
+{
+    Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
+    Hit hit = make_miss(ray.tmax);
+    if (ray_can_enter(&ray))
+        intersect_first_tris(RT_SCENE_ARGS, &ray, n_tris, &hit);
+    refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
+    return hit;
+}
+
 #if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
 /* The work of trace_rays with the packet traversal: rays first .. first + RT_LANES - 1 (those
  * below n_rays) traced as one packet, each hit refined and written as trace_one's would be. */

@@ -80,7 +80,9 @@ RT_FN float3 hit_position(float3 v0, float3 v1, float3 v2, const Hit *hit)
  * <= gamma(5) M per coordinate; pbrt-v4 (4th ed., sec. 6.8, "Managing Rounding Error") bounds its
  * own interpolation by gamma(7) sum |b_i v_i|, which we take: the two ulps over ours cover the t error
  * a ray/triangle test makes for a ray leaving the triangle (measured: gamma(1) still shows acne on a
- * large floor at the origin, gamma(2) none). The bound follows the triangle's magnitude, so a spawned ray
+ * large floor at the origin, gamma(2) none). The watertight test's refined t (plane_t_fp64, within
+ * RT_T_ERR of the exact distance) puts the triangle a spawned ray leaves at t < 0 for any origin on
+ * the right side of its plane, which the offset guarantees; rtlab.spawn_rays reads RT_SPAWN_ULPS too. The bound follows the triangle's magnitude, so a spawned ray
  * clears its own surface at any distance from the origin, without the fixed 256 ulps that speckled a
  * glass sphere at 1e4 (the robustness suite's family 11). */
 #ifndef RT_SPAWN_ULPS

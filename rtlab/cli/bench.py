@@ -175,14 +175,15 @@ def bench_robustness(ctx: typer.Context,
                      device: Optional[str] = DEVICE,
                      isects: Optional[str] = typer.Option(None, help="tests (default: every one)"),
                      traversals: Optional[str] = typer.Option(None, help="traversals (default: every one)"),
-                     families: str = typer.Option("1,2,3,4,5,6,7,8,9,10,11,12",
-                                                  help="families 1-9 (issue 4) and 10-12 (issue 13)"),
+                     families: str = typer.Option("1,2,3,4,5,6,7,8,9,10,11,12,13,14,15",
+                                                  help="families 1-15 (rtlab.robustness)"),
                      size: str = typer.Option("bench", help="'bench' (127² stairs, 10^5 rays) or 'test' (small)"),
                      conservative: str = typer.Option("default", help="RT_CONSERVATIVE: default, 0, 1 or 0,1"),
                      detail: bool = typer.Option(False, help="one row per case instead of per family"),
                      md: Optional[Path] = MD):
-    """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, false hits, NaN t, crashes
-    and hangs of every triangle test x traversal against the float64 reference."""
+    """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, ids that differ between
+    traversals, false hits, NaN t, t beyond its error bound, crashes and hangs of every triangle test
+    x traversal against the float64 reference."""
     from ..benches.tables import report_markdown
     from ..robustness import aggregate, robustness_table, run_robustness
     if any(c not in ("default", "0", "1") for c in names(conservative)):

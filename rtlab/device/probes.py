@@ -1,6 +1,8 @@
 """Probes for tests and tools: the kernels' own spawn and shadow-ray functions (rt_whitted.h) on
 arbitrary hits, through the probe kernels of lab steps 04 and 05 (probe_shadow, probe_secondary,
-probe_refract). They answer what the shading kernels would do with a hit, without a render.
+probe_refract). They answer what the shading kernels would do with a hit, without a render. And the
+brute force in the kernels' own arithmetic (lab step 02's trace_rays_loop), which every traversal must
+match exactly.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from ..scene.model import Scene
 from .kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
 from .layout import float4_rows
 from .scene import device_scene
-from .tracing import TraceResult, default_variant, unpack_hits
+from .tracing import TraceResult, resolve_variant, unpack_hits
 from .whitted import SHADOWS_STEP, TREE_STEP
 
 SECONDARY_KINDS = {"reflection": int(kernel_constant("RT_RAY_REFLECTION")),
@@ -32,7 +34,7 @@ def hit_records(t, tri, u, v) -> np.ndarray:
 def _probe_program(scene: Scene, backend, step: str, variant: Variant | None):
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
-    variant = variant or default_variant(backend)
+    variant = resolve_variant(variant, backend)
     ds = device_scene(scene, backend)
     program = load_program(backend, step, variant, ds.features(variant))
     ds.set_constants(program, None, variant)
@@ -86,3 +88,34 @@ def probe_refraction(backend, directions, normals, ior, front) -> tuple[np.ndarr
     program.launch("probe_refract", (n,), PROBE_BLOCK, [backend.to_device(d), backend.to_device(nrm), out, np.int32(n)])
     res = backend.to_host(out, np.float32, 4 * n).reshape(n, 4)
     return res[:, :3], res[:, 3]
+
+
+BRUTE_FORCE_STEP = "02_intersect"
+
+
+def probe_brute_force(scene: Scene, backend, origins, directions, variant: Variant | str | None = None,
+                      tmin: float = 0.0, tmax: float = np.inf) -> TraceResult:
+    """Closest hits of the rays against every triangle of the scene in a loop, with the variant's
+    triangle test and its t as trace() reports it (refined), no acceleration structure: what every
+    traversal must return, id for id and t for t, ties at equal t included. Costs rays x triangles
+    tests: meant for a few thousand rays."""
+    if not hasattr(backend, "compile"):
+        backend = get_backend(backend)
+    variant = resolve_variant(variant, backend).with_(traversal="stack", node_memory="global")
+    ds = device_scene(scene, backend)
+    program = load_program(backend, BRUTE_FORCE_STEP, variant, ds.features(variant))
+    ds.set_constants(program, None, variant)
+    o = np.asarray(origins, np.float32)
+    d = np.asarray(directions, np.float32)
+    n = len(o)
+    if n == 0:
+        empty = np.zeros(0, np.float32)
+        return TraceResult(empty, np.zeros(0, np.int32), empty, empty, 0.0, backend.name, backend.device_name)
+    lo = np.broadcast_to(np.asarray(tmin, np.float32), (n,))
+    hi = np.broadcast_to(np.asarray(tmax, np.float32), (n,))
+    out = backend.empty(16 * n)
+    ms = program.launch("trace_rays_loop", (n,), PROBE_BLOCK,
+                        ds.scene_args(variant) + [backend.to_device(float4_rows(o, lo)), backend.to_device(float4_rows(d, hi)),
+                                                  out, np.int32(n), np.int32(scene.n_triangles)])
+    t, tri, u, v = unpack_hits(backend.to_host(out, np.float32, 4 * n))
+    return TraceResult(t, tri, u, v, float(ms), backend.name, backend.device_name)

@@ -11,7 +11,7 @@ from ..scene.model import Scene
 from .kernels import Variant, load_program, primary_step, rays_per_work_item
 from .layout import HIT_DTYPE
 from .scene import device_scene
-from .tracing import TraceResult, default_variant, unpack_hits
+from .tracing import TraceResult, require_scene, resolve_variant, unpack_hits
 
 
 @dataclass
@@ -41,7 +41,8 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or default_variant(backend)
+    scene = require_scene(scene)
+    variant = resolve_variant(variant, backend)
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)
     program = load_program(backend, primary_step(variant), variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))

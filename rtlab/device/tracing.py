@@ -5,14 +5,16 @@ benchmarks all go through here.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..backends import get_backend
-from ..errors import RtlabError
+from ..errors import RtlabError, VariantError
 from ..scene.model import Scene
-from .kernels import DEFAULT_PRIMARY_STEP, TRACE_THREADS, Variant, load_program, primary_step, rays_per_work_item
+from .kernels import (DEFAULT_PRIMARY_STEP, INTERSECTIONS, TRACE_THREADS, TRAVERSALS, Variant, load_program,
+                      primary_step, rays_per_work_item)
 from .layout import HIT_DTYPE, float4_rows
 from .scene import device_scene
 
@@ -53,50 +55,167 @@ class TraceResult:
     def hit(self) -> np.ndarray:
         return self.tri >= 0
 
+    def points(self, scene: Scene):
+        """The hits' points with their rounding bounds and normals: rtlab.hit_points(scene, self)."""
+        from .spawn import hit_points
+        return hit_points(scene, self)
+
+    def spawn(self, scene: Scene, directions) -> tuple[np.ndarray, np.ndarray]:
+        """Rays leaving these hits in ``directions``, origins offset as the kernels' own (spawn_rays)."""
+        from .spawn import spawn_rays
+        return spawn_rays(scene, self, directions)
+
 
 def unpack_hits(records: np.ndarray) -> tuple[np.ndarray, ...]:
     h = records.view(HIT_DTYPE).reshape(-1)
     return h["t"].copy(), h["tri"].copy(), h["u"].copy(), h["v"].copy()
 
 
-def _rays_f32(a, name: str) -> np.ndarray:
-    a = np.asarray(a)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise RtlabError(f"{name} must have shape (N, 3), got {a.shape}")
-    return a.astype(np.float32, copy=False)
+def require_scene(scene, what: str = "scene") -> Scene:
+    """``scene`` if it is an rtlab Scene, else a RtlabError saying how to make one."""
+    if isinstance(scene, Scene):
+        return scene
+    hint = (f"rtlab.load_scene({os.fspath(scene)!r})" if isinstance(scene, (str, os.PathLike))
+            else "rtlab.load_scene(name or file) or rtlab.scene_from_arrays(vertices, faces)")
+    raise RtlabError(f"{what} must be an rtlab Scene, got {type(scene).__name__} {_short_repr(scene)}: make one with {hint}")
+
+
+def _short_repr(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def resolve_variant(variant, backend) -> Variant:
+    """The variant to run: ``variant`` itself, default_variant(backend) for None, or for a string the
+    default with the named parts replaced: a traversal ("bvh"), a triangle test ("moller"), or both
+    as "traversal/test" ("stack/watertight"), so a name never silently changes the triangle test."""
+    if variant is None:
+        return default_variant(backend)
+    if isinstance(variant, Variant):
+        return variant
+    if not isinstance(variant, str):
+        raise VariantError(f"variant must be an rtlab Variant or a name such as 'bvh' or 'stack/moller', got "
+                           f"{type(variant).__name__} {_short_repr(variant)}")
+    parts = [p.strip().lower() for p in variant.split("/") if p.strip()]
+    if not parts or len(parts) > 2:
+        raise VariantError(f"variant {variant!r}: name a traversal, a triangle test or 'traversal/test' "
+                           f"(traversals: {', '.join(TRAVERSALS)}; tests: {', '.join(INTERSECTIONS)})")
+    chosen = {}
+    for part in parts:
+        key = "traversal" if part in TRAVERSALS else "intersection" if part in INTERSECTIONS else None
+        if key is None or key in chosen:
+            raise VariantError(f"variant {variant!r}: {part!r} is not a traversal ({', '.join(TRAVERSALS)}) or a "
+                               f"triangle test ({', '.join(INTERSECTIONS)}){' (named twice)' if key else ''}")
+        chosen[key] = part
+    return default_variant(backend).with_(**chosen)
+
+
+def _real_array(a, name: str) -> np.ndarray:
+    """``a`` as a numpy array of real numbers (floats or integers), or a RtlabError naming its dtype."""
+    try:
+        arr = np.asarray(a)
+    except (TypeError, ValueError) as e:
+        raise RtlabError(f"{name} must be an array of real numbers ({e})") from None
+    if arr.dtype.kind not in "fiu":
+        kind = {"c": "complex numbers", "U": "strings", "S": "bytes", "O": "Python objects", "b": "booleans"}.get(
+            arr.dtype.kind, f"dtype {arr.dtype}")
+        raise RtlabError(f"{name} must hold real numbers (float or integer), got {kind} (dtype {arr.dtype})")
+    return arr
+
+
+def _rays_real(a, name: str) -> np.ndarray:
+    """(N, 3) rays of real numbers in their own dtype (float64 stays float64 until it is scaled)."""
+    arr = _real_array(a, name)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise RtlabError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr if arr.dtype.kind == "f" else arr.astype(np.float64)
+
+
+F32_MAX = float(np.finfo(np.float32).max)
+F32_TINY = float(np.finfo(np.float32).tiny)
+
+
+def _origins_f32(origins: np.ndarray) -> np.ndarray:
+    """Origins as the kernels read them; a finite origin beyond float32's range is an error (it would
+    become inf and the ray a silent miss). NaN and inf stay: such rays miss, as documented."""
+    o64 = origins.astype(np.float64, copy=False)
+    with np.errstate(invalid="ignore"):
+        beyond = np.isfinite(o64) & (np.abs(o64) > F32_MAX)
+    if beyond.any():
+        ray = int(np.flatnonzero(beyond.any(axis=1))[0])
+        raise RtlabError(f"origin of ray {ray} {tuple(o64[ray].tolist())} lies beyond float32's range "
+                         f"(|x| <= {F32_MAX:.3g}), where the kernels trace: move the scene and the rays nearer the origin")
+    return origins.astype(np.float32)
 
 
 def _scaled_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directions whose largest component is outside DIRECTION_RANGE, divided by a power of two s so
-    that it lies in [1, 2): (directions, s per ray). A power of two changes no rounding, so the
-    kernel traces the very same ray, o + t d = o + (t s) (d / s): its interval is (tmin s, tmax s)
-    and t = t_kernel / s exactly. NaN, infinite and zero directions keep s = 1 (they miss)."""
-    largest = np.abs(directions).max(axis=1, initial=0.0).astype(np.float64)
+    that it lies in [1, 2), in their own dtype before the float32 cast (float64 directions beyond
+    float32's range or below its normal range included): (float32 directions, s per ray). A power of
+    two changes no rounding, so the kernel traces the very same ray, o + t d = o + (t s) (d / s): its
+    interval is (tmin s, tmax s) and t = t_kernel / s. NaN, infinite and zero directions keep s = 1
+    (they miss)."""
+    d64 = directions.astype(np.float64, copy=False)
+    with np.errstate(invalid="ignore"):
+        largest = np.abs(d64).max(axis=1, initial=0.0)
     low, high = DIRECTION_RANGE
     rescale = np.isfinite(largest) & (largest > 0.0) & ((largest < low) | (largest > high))
     scale = np.ones(len(directions))
-    if rescale.any():
-        exponent = np.frexp(largest[rescale])[1]           # largest = f 2^e, f in [0.5, 1)
-        scale[rescale] = np.ldexp(1.0, exponent - 1)        # largest / scale in [1, 2)
-        directions = directions.astype(np.float64)
-        directions[rescale] /= scale[rescale, None]
-        directions = directions.astype(np.float32)
-    return directions, scale
+    if not rescale.any():
+        return directions.astype(np.float32), scale
+    exponent = np.frexp(largest[rescale])[1]           # largest = f 2^e, f in [0.5, 1)
+    scale[rescale] = np.ldexp(1.0, exponent - 1)        # largest / scale in [1, 2)
+    scaled = directions.astype(np.float64, copy=True)   # a power of two: exact in float64
+    scaled[rescale] /= scale[rescale, None]
+    return scaled.astype(np.float32), scale
+
+
+def _bound_array(value, name: str, n: int) -> np.ndarray:
+    if value is None:
+        raise RtlabError(f"{name} must be a number or one number per ray, got None (use 0.0 for tmin, "
+                         f"numpy.inf for tmax)")
+    arr = _real_array(value, name)
+    try:
+        return np.broadcast_to(arr.astype(np.float64), (n,))
+    except ValueError:
+        raise RtlabError(f"{name} must be a scalar or one value per ray ({n}), got shape {arr.shape}") from None
 
 
 def _ray_bounds(tmin, tmax, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """tmin and tmax as (n,) float64; a negative tmin is an error (an empty interval is not)."""
-    try:
-        lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
-        hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
-    except ValueError:
-        raise RtlabError(f"tmin and tmax must be scalars or one value per ray ({n}), got shapes "
-                         f"{np.shape(tmin)} and {np.shape(tmax)}") from None
+    """tmin and tmax as (n,) float64: tmin finite and >= 0, tmax not NaN and >= tmin (an empty
+    interval, tmax == tmin, is allowed: the ray misses); anything else is a RtlabError naming the ray."""
+    lo, hi = _bound_array(tmin, "tmin", n), _bound_array(tmax, "tmax", n)
+
+    def first(mask) -> int:
+        return int(np.flatnonzero(mask)[0])
+
+    if np.any(np.isnan(lo)) or np.any(np.isinf(lo)):
+        i = first(~np.isfinite(lo))
+        raise RtlabError(f"tmin must be a finite number >= 0, got {lo[i]:g} (ray {i})")
     if np.any(lo < 0.0):
-        first = int(np.flatnonzero(lo < 0.0)[0])
-        raise RtlabError(f"tmin must be >= 0, got {lo[first]:g} (ray {first}): the traversals start at the ray's "
+        i = first(lo < 0.0)
+        raise RtlabError(f"tmin must be >= 0, got {lo[i]:g} (ray {i}): the traversals start at the ray's "
                          "origin; to trace from behind it, move the origin to o + tmin d and trace from 0")
+    if np.any(np.isnan(hi)):
+        i = first(np.isnan(hi))
+        raise RtlabError(f"tmax must be a number (numpy.inf for no limit), got nan (ray {i})")
+    if np.any(hi < lo):
+        i = first(hi < lo)
+        raise RtlabError(f"tmax must be >= tmin, got tmin {lo[i]:g} and tmax {hi[i]:g} (ray {i})")
     return lo, hi
+
+
+def _t_in_caller_units(t: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Kernel t (float32, for directions divided by scale) in units of the caller's directions: float32
+    where every finite t fits float32's normal range, else float64 (a direction of length 1e-40 puts
+    a hit 10 away at t = 1e41)."""
+    if not np.any(scale != 1.0):
+        return t
+    t64 = t.astype(np.float64) / scale
+    finite = np.isfinite(t64) & (t64 != 0.0)
+    if np.any(finite & ((np.abs(t64) > F32_MAX) | (np.abs(t64) < F32_TINY))):
+        return t64
+    return t64.astype(np.float32)
 
 
 _ray_buffers: dict = {}
@@ -113,21 +232,32 @@ def ray_buffers(backend, n: int):
     return entry[1]
 
 
-def trace(scene: Scene, origins, directions, backend=None, variant: Variant | None = None,
+def trace(scene: Scene, origins, directions, backend=None, variant: Variant | str | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
           defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,
           warmup: int = 0, width: int | None = None) -> TraceResult:
     """Closest hit along each ray o + t d within (tmin, tmax), t in units of |d| (d need not be
     normalised: any finite, non-zero length works). At exactly equal t the lowest triangle id
-    wins, in every traversal and triangle test (as in the float64 reference), so all variants
-    report the same triangle at a tie: duplicated triangles, or two triangles of an edge whose
-    float32 t come out equal. With the watertight test (the default) every traversal returns the
-    very same ids; with the others, where the two t of an edge differ by rounding, the packet and
-    the BVH may report the nearer one the kd-tree's cells hide (a tie by the reference's rule,
-    rtlab.reference.compare_hits). Rays with NaN/Inf components or a zero
-    direction are reported as misses. ``tmin``, ``tmax``: scalars or one per ray; tmin must be
-    >= 0 (a RtlabError otherwise). ``variant`` None: default_variant(backend) (watertight;
-    the BVH on a GPU; a Variant you name keeps its own test and traversal). ``backend`` is a Backend or a name ("opencl", "cuda").
+    wins, in every traversal and triangle test (as in the float64 reference): every traversal culls a
+    cell or box only beyond the hit's t widened by its rounding pad (t_cull, rt_intersect.h). With the
+    watertight test (the default) t is the plane distance computed in double, within 2 ulps of the
+    exact one at any angle (plane_t_fp64), so every traversal returns the very same ids, ties at
+    shared vertices, on kd split planes and between coplanar overlapping triangles included; with
+    the others, whose t can be off by more on slivers and far from the origin, the packet and the BVH
+    may report another triangle of an edge (a tie by the reference's rule,
+    rtlab.reference.compare_hits).
+
+    Inputs are checked: ``scene`` an rtlab Scene; ``origins``, ``directions`` (N, 3) arrays of real
+    numbers (float32, float64 or integers; a string, complex or object array is a RtlabError).
+    Directions are rescaled by powers of two in their own dtype before the float32 cast, so float64
+    directions beyond float32's range and float32 subnormal ones trace as their unit-length twins; t
+    comes back float32, or float64 when a length puts some t outside float32's range. Rays with
+    NaN/Inf components or a zero direction are reported as misses; a finite origin beyond float32's
+    range is an error. ``tmin``, ``tmax``: numbers or one per ray; tmin finite and >= 0, tmax >= tmin
+    (numpy.inf: no limit); None, NaN or a reversed interval is a RtlabError naming the ray.
+    ``variant`` None: default_variant(backend) (watertight; the BVH on a GPU); a Variant keeps its own
+    test and traversal; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
+    and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
@@ -135,14 +265,16 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
     camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
     order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
     The hits are the same either way."""
-    origins, directions = _rays_f32(origins, "origins"), _rays_f32(directions, "directions")
+    scene = require_scene(scene)
+    origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
     n = origins.shape[0]
     lo, hi = _ray_bounds(tmin, tmax, n)
+    origins = _origins_f32(origins)
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or default_variant(backend)
+    variant = resolve_variant(variant, backend)
     ds = device_scene(scene, backend)
     if n == 0:
         empty = np.zeros(0, np.float32)
@@ -162,8 +294,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | No
                                 ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
-    if np.any(scale != 1.0):
-        t = (t / scale).astype(np.float32)
+    t = _t_in_caller_units(t, scale)
     return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
 
 

@@ -40,7 +40,7 @@ from ..errors import RtlabError
 from ..scene.model import Scene
 from .kernels import SceneFeatures, Variant, load_program
 from .scene import device_scene
-from .tracing import TraceResult, default_variant
+from .tracing import TraceResult, require_scene, resolve_variant
 from .whitted_frames import FRAME_RUNNERS, NO_RAY, Launch  # noqa: F401  (NO_RAY: in a result's tree)
 
 SHADOWS_STEP = "04_shadows"
@@ -125,7 +125,8 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = variant or default_variant(backend)
+    scene = require_scene(scene)
+    variant = resolve_variant(variant, backend)
     if variant.traversal == "packet":
         raise RtlabError("the packet traversal has no shadow or secondary-ray kernels (its shared stack lives in "
                          "lab step 03's entry kernels); choose a single-ray traversal")

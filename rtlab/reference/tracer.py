@@ -24,8 +24,10 @@ JCGT 2(1), 2013, in float64. After translating to the ray origin and shearing so
 +z, each edge function is computed from the two transformed corners of that edge only, so the two
 triangles sharing an edge compute exactly negated values: a ray through a shared edge or vertex
 hits at least one of them (no leaks), and with inclusive edges both (their two t may still differ
-by an ulp; then the nearer wins). Möller & Trumbore (1997), one of the kernels' tests, has no such
-guarantee; a test the kernels do not use also keeps the reference independent.
+by an ulp; then the nearer wins). The edge functions only decide whether the ray hits; t is the
+distance to the triangle's plane, n.(v0 - o) / n.d with n from the exact float64 edge differences,
+which stays accurate for slivers seen at grazing angles where Woop's scaled-barycentric t does not.
+Möller & Trumbore (1997), one of the kernels' tests, has no such guarantee.
 
 Traversal: a padded slab test in the spirit of Ize, "Robust BVH Ray Traversal", JCGT 2(2), 2013:
 slab distances are widened by their worst-case relative rounding, plus an absolute slack far
@@ -165,7 +167,7 @@ def _trace_one(node_lo, node_hi, node_child, node_first, node_count, tri_verts, 
         if count > 0:
             first = node_first[node]
             for j in range(first, first + count):
-                inside, t, u, v = woop_hit(tri_verts, j, ox, oy, oz, kx, ky, kz, sx, sy, sz)
+                inside, t, u, v = woop_hit(tri_verts, j, ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz)
                 if inside and t > tmin and t < tmax:
                     tid = tri_ids[j]
                     # equal t: the lower id wins, whatever order the leaves come in
@@ -280,7 +282,7 @@ def brute_force_trace(vertices, faces, origins, directions, tmin=0.0, tmax=np.in
         oc = o[r][:, None, :]
         col = (slice(None), None)
         t, _, b1, b2, inside = woop_numpy(
-            v0[None] - oc, v1[None] - oc, v2[None] - oc,
+            v0[None] - oc, v1[None] - oc, v2[None] - oc, d[r][:, None, :],
             kx[r][col], ky[r][col], kz[r][col], sx[r][col], sy[r][col], sz[r][col])
         ok = inside & (t > lo[r][col]) & (t < hi[r][col])
         t = np.where(ok, t, np.inf)
@@ -314,7 +316,7 @@ def intersect_pairs(origin, direction, tri_ids, vertices, faces, eps=0.0, tmin=0
     v0, v1, v2 = v64[fk[:, 0]], v64[fk[:, 1]], v64[fk[:, 2]]
     valid, kx, ky, kz, sx, sy, sz = ray_shear_numpy(d)
     valid &= known & np.isfinite(o).all(1) & usable_triangle_mask(v0, v1, v2)
-    t, b0, b1, b2, inside = woop_numpy(v0 - o, v1 - o, v2 - o, kx, ky, kz, sx, sy, sz)
+    t, b0, b1, b2, inside = woop_numpy(v0 - o, v1 - o, v2 - o, d, kx, ky, kz, sx, sy, sz)
     eps = np.broadcast_to(np.asarray(eps, np.float64), (k,))
     with np.errstate(invalid="ignore"):
         # edge slack: accept points up to eps (in barycentric units) outside the triangle;

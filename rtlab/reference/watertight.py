@@ -1,8 +1,10 @@
 """The float64 reference's triangle test: the watertight test of Woop, Benthin & Wald, "Watertight
 Ray/Triangle Intersection", JCGT 2(1), 2013, in float64 (rtlab.reference.tracer's contract), as numpy
 over arrays and as numba over one triangle. Both do the same float operations in the same order, so
-the BVH tracer and brute force give bit-identical t. Which triangles can be hit at all is
-:func:`usable_triangle_mask`'s decision."""
+the BVH tracer and brute force give bit-identical t. The edge functions decide whether a ray hits;
+t is the distance to the triangle's plane (:func:`plane_t_numpy`), not Woop's scaled barycentrics,
+whose rounding grows with the triangle's depth range along the ray (slivers seen at grazing angles).
+Which triangles can be hit at all is :func:`usable_triangle_mask`'s decision."""
 from __future__ import annotations
 
 import math
@@ -68,12 +70,28 @@ def ray_shear_numpy(d: np.ndarray):
     return valid, kx, ky, kz, sx, sy, sz
 
 
-def woop_numpy(a, b, c, kx, ky, kz, sx, sy, sz):
-    """Woop's watertight test on corner-minus-origin arrays a, b, c of shape (..., 3).
+def plane_t_numpy(a, b, c, d):
+    """Distance along d from the origin to the plane of the corner-minus-origin points a, b, c:
+    n.a / n.d with n = (b - a) x (c - a). The float32 scene's differences are exact in float64, so n
+    is exact but for a rounding a component and t errs by a few float64 ulps over the cosine of the
+    incidence angle, whatever the triangle's shape (the kernels' plane_t_fp64, rt_intersect.h)."""
+    e1x, e1y, e1z = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1], b[..., 2] - a[..., 2]
+    e2x, e2y, e2z = c[..., 0] - a[..., 0], c[..., 1] - a[..., 1], c[..., 2] - a[..., 2]
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    num = nx * a[..., 0] + ny * a[..., 1] + nz * a[..., 2]
+    den = nx * d[..., 0] + ny * d[..., 1] + nz * d[..., 2]
+    return num / den
 
-    kx..sz broadcast against a[..., 0]. Returns (t, b0, b1, b2, inside): t and the barycentric
-    weights of v0, v1, v2 (garbage where not inside), and inside = edge functions of one sign
-    with a non-zero determinant (edges inclusive).
+
+def woop_numpy(a, b, c, d, kx, ky, kz, sx, sy, sz):
+    """Woop's watertight test on corner-minus-origin arrays a, b, c of shape (..., 3) and the ray
+    directions d (broadcast against them).
+
+    kx..sz broadcast against a[..., 0]. Returns (t, b0, b1, b2, inside): t (plane_t_numpy) and the
+    barycentric weights of v0, v1, v2 (garbage where not inside), and inside = edge functions of one
+    sign with a non-zero determinant (edges inclusive).
     """
     def pick(x, k):
         return np.take_along_axis(x, np.broadcast_to(k, x.shape[:-1])[..., None], -1)[..., 0]
@@ -94,8 +112,7 @@ def woop_numpy(a, b, c, kx, ky, kz, sx, sy, sz):
         mixed = ((eu < 0) | (ev < 0) | (ew < 0)) & ((eu > 0) | (ev > 0) | (ew > 0))
         det = eu + ev + ew
         inside = ~mixed & (det != 0.0)
-        tt = eu * (sz * akz) + ev * (sz * bkz) + ew * (sz * ckz)
-        t = tt / det
+        t = plane_t_numpy(a, b, c, d)
         return t, eu / det, ev / det, ew / det, inside
 
 
@@ -126,7 +143,23 @@ def ray_shear(dx, dy, dz):
 
 
 @njit(cache=True, inline="always")
-def woop_hit(tv, j, ox, oy, oz, kx, ky, kz, sx, sy, sz):
+def plane_t(tv, j, ox, oy, oz, dx, dy, dz):
+    """plane_t_numpy on triangle row j of tv, the same operations in the same order."""
+    ax, ay, az = tv[j, 0] - ox, tv[j, 1] - oy, tv[j, 2] - oz
+    bx, by, bz = tv[j, 3] - ox, tv[j, 4] - oy, tv[j, 5] - oz
+    cx, cy, cz = tv[j, 6] - ox, tv[j, 7] - oy, tv[j, 8] - oz
+    e1x, e1y, e1z = bx - ax, by - ay, bz - az
+    e2x, e2y, e2z = cx - ax, cy - ay, cz - az
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    num = nx * ax + ny * ay + nz * az
+    den = nx * dx + ny * dy + nz * dz
+    return num / den
+
+
+@njit(cache=True, inline="always")
+def woop_hit(tv, j, ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz):
     """Woop 2013 on triangle row j of tv (v0xyz v1xyz v2xyz) -> (inside, t, u, v).
 
     Same operations in the same order as woop_numpy: the brute-force check compares bit for bit.
@@ -157,5 +190,4 @@ def woop_hit(tv, j, ox, oy, oz, kx, ky, kz, sx, sy, sz):
     det = eu + ev + ew
     if det == 0.0:
         return False, 0.0, 0.0, 0.0
-    tt = eu * (sz * akz) + ev * (sz * bkz) + ew * (sz * ckz)
-    return True, tt / det, ev / det, ew / det
+    return True, plane_t(tv, j, ox, oy, oz, dx, dy, dz), ev / det, ew / det

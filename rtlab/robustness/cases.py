@@ -22,10 +22,14 @@ ROBUST_STACK_SIZE = 64
 TIE_ULPS = 16.0
 
 FAMILY_NAMES = {1: "sphere", 2: "plane", 3: "splits", 4: "stairs", 5: "stairs_scaled", 6: "slivers",
-                7: "grazing", 8: "bad_rays", 9: "random", 10: "box_planes", 11: "spawn_offsets", 12: "dir_lengths"}
+                7: "grazing", 8: "bad_rays", 9: "random", 10: "box_planes", 11: "spawn_offsets", 12: "dir_lengths",
+                13: "slivers_grazing", 14: "ties", 15: "spawned"}
+ALL_FAMILIES = tuple(sorted(FAMILY_NAMES))
+TRACED_FAMILIES = tuple(f for f in ALL_FAMILIES if f != 11)     # family 11 renders images
 # count -> families where the watertight test with the conservative traversal must reach 0
-GOALS = {"leaks": (1, 2, 10), "misses": (1, 2, 10), "mismatches": (3, 4, 5, 9, 10, 12), "false_hits": (6, 8),
-         "nan_t": tuple(range(1, 13)), "failures": tuple(range(1, 13))}
+GOALS = {"leaks": (1, 2, 10), "misses": (1, 2, 10), "mismatches": (3, 4, 5, 9, 10, 12, 13, 14, 15),
+         "false_hits": (6, 8, 13, 15), "nan_t": ALL_FAMILIES, "failures": ALL_FAMILIES,
+         "differs": TRACED_FAMILIES, "t_off": TRACED_FAMILIES}
 # Family 11: a pixel is "off" when a channel differs from the float64 reference by more than this
 PIXEL_OFF = 16
 GLASS_OFFSETS = (0.0, 1.0, 1e1, 1e2, 1e3, 1e4, 1e5)
@@ -39,12 +43,16 @@ SIZES = {
     "test": dict(sphere_subdiv=4, sphere_rays=5000, plane_quads=8, plane_rays=5000, split_rays=1500,
                  stairs_grid=43, scaled_grid=22, slivers=60, sliver_rays=1500, grazing_rays=1500,
                  bad_ray_sets=4, random_rays=1500, random_scenes=("bunny",), grid_cubes=3, plane_rays_axis=1500,
-                 room_rays=1500, glass_size=40, glass_offsets=(0.0, 1e1, 1e3, 1e4, 1e5), length_rays=300),
+                 room_rays=1500, glass_size=40, glass_offsets=(0.0, 1e1, 1e3, 1e4, 1e5), length_rays=300,
+                 grazing_sliver_rays=600, sliver_scenes=("sponza",), tie_rays=900, tie_scenes=("sponza",),
+                 spawned_rays=300),
     "bench": dict(sphere_subdiv=5, sphere_rays=100_000, plane_quads=64, plane_rays=50_000,
                   split_rays=50_000, stairs_grid=127, scaled_grid=127, slivers=2000, sliver_rays=50_000,
                   grazing_rays=50_000, bad_ray_sets=40, random_rays=100_000,
                   random_scenes=("bunny", "sponza"), grid_cubes=6, plane_rays_axis=50_000, room_rays=50_000,
-                  glass_size=128, glass_offsets=GLASS_OFFSETS, length_rays=10_000),
+                  glass_size=128, glass_offsets=GLASS_OFFSETS, length_rays=10_000,
+                  grazing_sliver_rays=20_000, sliver_scenes=("sponza", "kitchen", "conference"), tie_rays=30_000,
+                  tie_scenes=("sponza", "kitchen", "conference"), spawned_rays=10_000),
 }
 
 
@@ -61,6 +69,7 @@ class Case:
     bad: np.ndarray | None = None        # (N,) bool: NaN/Inf/zero-direction rays (must miss)
     target_tris: np.ndarray | None = None  # ids a must_hit ray must hit (None: any); others are leaks
     render: dict | None = None           # family 11: render_whitted options; rays are the camera's pixels
+    tie_eps: float = 1e-4                # compare_hits' relative t slack for a tie (family 13: tighter)
     _reference: object = field(default=None, repr=False)
 
     @property

@@ -5,6 +5,7 @@ from functools import lru_cache
 
 from ..errors import RtlabError
 from .cases import FAMILY_NAMES, SIZES, Case
+from .closest import family_slivers_grazing, family_spawned, family_ties
 from .inputs import family_bad_rays, family_dir_lengths, family_grazing, family_random, family_slivers
 from .shading import family_spawn_offsets
 from .watertight import (family_box_planes, family_plane, family_sphere, family_splits, family_stairs,
@@ -12,7 +13,7 @@ from .watertight import (family_box_planes, family_plane, family_sphere, family_
 
 
 def family_cases(family: int, size: str = "test") -> list[Case]:
-    """The cases of one family (1-9) at size "test" (PoCL-friendly) or "bench" (the issue's sizes).
+    """The cases of one family (1-15) at size "test" (PoCL-friendly) or "bench" (the issue's sizes).
     Memoised: the same Scene objects come back, so their device uploads and trees are reused."""
     return _family_cases(int(family), size)
 
@@ -35,6 +36,9 @@ def _family_cases(family: int, size: str) -> list[Case]:
         10: lambda: family_box_planes(s["plane_rays_axis"], s["grid_cubes"], s["room_rays"]),
         11: lambda: family_spawn_offsets(s["glass_size"], s["glass_offsets"]),
         12: lambda: family_dir_lengths(s["length_rays"]),
+        13: lambda: family_slivers_grazing(s["grazing_sliver_rays"], s["sliver_scenes"]),
+        14: lambda: family_ties(s["tie_rays"], s["tie_scenes"]),
+        15: lambda: family_spawned(s["spawned_rays"]),
     }
     if family not in makers:
         raise RtlabError(f"unknown robustness family {family}; families: "

@@ -12,8 +12,13 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..benches.tables import Table
+from ..kernel_constants import kernel_constant
 from .cases import FAMILY_NAMES, GOALS, PIXEL_OFF, ROBUST_STACK_SIZE, Case
 from .families import family_cases
+
+# The relative t error the kernels promise for the closest-hit choice (the watertight test's
+# plane_t_fp64); a same-triangle hit whose t is further from the float64 reference counts as t_off
+T_ERR = float(kernel_constant("RT_T_ERR"))
 
 
 @dataclass
@@ -33,6 +38,8 @@ class RobustnessRow:
     ties: int = 0
     false_hits: int = 0
     nan_t: int = 0
+    t_off: int = 0                      # same triangle as the reference, t off by more than RT_T_ERR
+    differs: int = -1                   # id not the traversals' majority (same test); -1: not compared
     px_off: int = -1                    # family 11 only
     failure: str = ""
     t_rel_err_max: float = float("nan")
@@ -45,7 +52,7 @@ class RobustnessRow:
 
     def goal_violations(self) -> dict[str, int]:
         """Counts that miss the issue's goal (meaningful for the watertight, conservative rows)."""
-        return {k: getattr(self, k) for k, fams in GOALS.items() if self.family in fams and getattr(self, k)}
+        return {k: getattr(self, k) for k, fams in GOALS.items() if self.family in fams and getattr(self, k) > 0}
 
 
 def trace_case(case: Case, backend, isect: str, traversal: str, conservative: int | None = None, **defines):
@@ -70,13 +77,17 @@ def count_case(case: Case, ref, tri: np.ndarray, t: np.ndarray, row: RobustnessR
     from ..reference.metrics import barycentric_slack
     v, f = case.scene.vertices, case.scene.faces
     tri = np.where(np.asarray(tri) < 0, -1, tri).astype(np.int64)
-    cmp = compare_hits(ref, tri, t, v, f, case.origins, case.directions, tie_abs=case.tie_abs())
+    cmp = compare_hits(ref, tri, t, v, f, case.origins, case.directions, tie_eps=case.tie_eps, tie_abs=case.tie_abs())
     k_hit, r_hit = tri >= 0, ref.tri >= 0
     row.ref_hits = int(r_hit.sum())
     row.misses = int((r_hit & ~k_hit).sum())
     row.mismatches, row.ties = cmp.n_mismatch, cmp.n_ties
     row.t_rel_err_max = cmp.t_rel_err_max
     row.nan_t = int(np.isnan(t).sum())
+    same = k_hit & (tri == ref.tri)
+    with np.errstate(invalid="ignore"):
+        off = np.abs(np.asarray(t, np.float64)[same] - ref.t[same]) > T_ERR * np.abs(ref.t[same])
+    row.t_off = int(np.sum(off | np.isnan(np.asarray(t, np.float64)[same])))
     reached = k_hit if case.target_tris is None else np.isin(tri, case.target_tris)
     if case.must_hit is not None:
         row.leaks = int((case.must_hit & ~reached).sum())
@@ -234,7 +245,36 @@ def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Ite
                     tri, t, row.kernel_ms = out
                     count_case(case, ref, tri, t, row)
                 rows.append(row)
+            count_differs(rows[len(rows) - len(combos):], outcomes)
     return rows
+
+
+def majority_ids(ids: list[np.ndarray]) -> np.ndarray:
+    """Per ray, the id most of the arrays report (misses as -1); among equally common ids, the lowest."""
+    stack = np.stack([np.where(np.asarray(i) < 0, -1, i).astype(np.int64) for i in ids])
+    counts = (stack[:, None, :] == stack[None, :, :]).sum(axis=1)
+    best = counts.max(axis=0)
+    return np.where(counts == best, stack, np.iinfo(np.int64).max).min(axis=0)
+
+
+def count_differs(rows: list[RobustnessRow], outcomes: list) -> None:
+    """Fill ``differs`` of one case's rows: per test and RT_CONSERVATIVE setting traced by two or more
+    traversals, the rays whose id is not the one most traversals report ("the same ids in every
+    traversal"). Rows that failed or rendered are left at -1."""
+    groups: dict[tuple, list[int]] = {}
+    for i, (row, out) in enumerate(zip(rows, outcomes)):
+        if isinstance(out, tuple) and len(out) == 3:
+            groups.setdefault((row.isect, row.conservative), []).append(i)
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        ids = [np.asarray(outcomes[i][0]) for i in members]
+        majority = majority_ids(ids)
+        for i, tri in zip(members, ids):
+            differ = np.where(tri < 0, -1, tri) != majority
+            rows[i].differs = int(differ.sum())
+            if differ.any() and not rows[i].first_bad:
+                rows[i].first_bad = np.flatnonzero(differ)[:5].tolist()
 
 
 def aggregate(rows: list[RobustnessRow]) -> list[RobustnessRow]:
@@ -246,8 +286,10 @@ def aggregate(rows: list[RobustnessRow]) -> list[RobustnessRow]:
         if a is None:
             out[key] = replace(r, case=FAMILY_NAMES[r.family], first_bad=list(r.first_bad))
             continue
-        for k in ("rays", "ref_hits", "leaks", "misses", "mismatches", "ties", "false_hits", "nan_t"):
+        for k in ("rays", "ref_hits", "leaks", "misses", "mismatches", "ties", "false_hits", "nan_t", "t_off"):
             setattr(a, k, getattr(a, k) + getattr(r, k))
+        if r.differs >= 0:                                     # -1: not compared
+            a.differs = max(a.differs, 0) + r.differs
         if r.px_off >= 0:                                      # -1: not counted (families other than 11)
             a.px_off = max(a.px_off, 0) + r.px_off
         a.failure = a.failure or r.failure
@@ -257,14 +299,15 @@ def aggregate(rows: list[RobustnessRow]) -> list[RobustnessRow]:
 
 
 TABLE_COLUMNS = ("family", "case", "test", "traversal", "cons.", "rays", "leaks", "misses", "mismatches",
-                 "ties", "false hits", "NaN t", "px off", "failure", "max rel dt", "ms")
+                 "ties", "differs", "false hits", "NaN t", "t off", "px off", "failure", "max rel dt", "ms")
 
 
 def row_cells(r: RobustnessRow) -> tuple[str, ...]:
     dt = "-" if np.isnan(r.t_rel_err_max) else f"{r.t_rel_err_max:.1e}"
     return (str(r.family), r.case, r.isect, r.traversal, str(r.conservative), f"{r.rays:,}", str(r.leaks),
-            str(r.misses), str(r.mismatches), str(r.ties), str(r.false_hits), str(r.nan_t),
-            "-" if r.px_off < 0 else str(r.px_off), r.failure or "-", dt, f"{r.kernel_ms:.1f}")
+            str(r.misses), str(r.mismatches), str(r.ties), "-" if r.differs < 0 else str(r.differs),
+            str(r.false_hits), str(r.nan_t), str(r.t_off), "-" if r.px_off < 0 else str(r.px_off), r.failure or "-",
+            dt, f"{r.kernel_ms:.1f}")
 
 
 def robustness_table(rows: list[RobustnessRow], title: str = "robustness") -> Table:

@@ -13,7 +13,7 @@ from rtlab.scene.presets import PRESETS, Preset, bench_camera, bench_view_names,
 _LAZY = {
     "load_scene": "loader", "load_mesh_file": "loader", "MeshData": "mesh",
     "mesh_warnings": "mesh", "scene_warnings": "mesh", "smooth_vertex_normals": "mesh",
-    "default_scene": "procedural",
+    "default_scene": "procedural", "scene_from_arrays": "arrays",
 }
 
 __all__ = ["Camera", "Light", "Material", "Scene", "PRESETS", "Preset", "bench_camera",

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtlab.scene.model import Material, Scene, scale_warning
+from rtlab.scene.model import Material, Scene, scale_warnings
 
 NORMAL_MODES = ("auto", "file", "smooth", "flat")
 # "auto" normals are smooth when at most this share of triangles has a corner whose smooth normal
@@ -126,8 +126,8 @@ def mesh_warnings(vertices: np.ndarray, faces: np.ndarray, where: str,
 
 
 def scene_warnings(scene: Scene) -> list[str]:
-    """:func:`mesh_warnings` for a loaded scene (the Scene keeps no load-time notes), and whether its
-    coordinates leave the range where float32 ray tests mean anything (:func:`scale_warning`)."""
+    """:func:`mesh_warnings` for a loaded scene (the Scene keeps no load-time notes), whether its
+    coordinates leave the range where float32 ray tests mean anything, and its objects too small for
+    float32 where they lie (:func:`rtlab.scene.model.scale_warnings`)."""
     where = scene.source or scene.name
-    scale = scale_warning(scene.vertices, where)
-    return mesh_warnings(scene.vertices, scene.faces, where) + ([scale] if scale else [])
+    return mesh_warnings(scene.vertices, scene.faces, where) + scale_warnings(scene.vertices, scene.faces, where)

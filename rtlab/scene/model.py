@@ -6,7 +6,8 @@ reference promotes these same float32 values, so both trace the very same triang
 A Scene checks itself when it is made (:meth:`Scene.validate`; the device upload checks again, since
 fields can be reassigned): array shapes, face indices, material ids. Every builder and kernel may
 then take the data as valid. A bad scene is one SceneError naming the first bad face, index or id;
-coordinates outside the range where float32 ray tests mean anything give a :class:`ScaleWarning`.
+coordinates outside the range where float32 ray tests mean anything, and objects too small for
+their distance from the origin (rtlab.scene.scale), give a :class:`ScaleWarning`.
 A Camera checks itself the same way (:meth:`Camera.__post_init__`).
 """
 from __future__ import annotations
@@ -28,7 +29,8 @@ MEANINGFUL_COORDINATES = (1e-12, 1e13)
 
 
 class ScaleWarning(UserWarning):
-    """A scene's coordinates lie outside MEANINGFUL_COORDINATES: rays may silently miss."""
+    """A scene's coordinates lie outside MEANINGFUL_COORDINATES, or an object is too small for float32
+    where it lies (rtlab.scene.scale): rays may silently miss."""
 
 
 @dataclass
@@ -151,6 +153,14 @@ def scale_warning(vertices: np.ndarray, where: str) -> str | None:
             f"meaningful within [{low:g}, {high:g}]: rays may miss silently. Rescale or recentre the scene")
 
 
+def scale_warnings(vertices: np.ndarray, faces: np.ndarray, where: str) -> list[str]:
+    """scale_warning, and the objects float32 cannot hold where they are (rtlab.scene.scale: spawn
+    offsets beyond a share of an object's size, triangles collapsed to zero area)."""
+    from .scale import object_scale_warnings
+    message = scale_warning(vertices, where)
+    return ([message] if message else []) + object_scale_warnings(vertices, faces, where)
+
+
 @dataclass
 class Scene:
     name: str
@@ -165,8 +175,7 @@ class Scene:
 
     def __post_init__(self):
         self.validate()
-        message = scale_warning(self.vertices, f"scene {self.name!r}")
-        if message:
+        for message in scale_warnings(self.vertices, self.faces, f"scene {self.name!r}"):
             warnings.warn(message, ScaleWarning, stacklevel=3)
 
     def validate(self) -> "Scene":
@@ -204,6 +213,13 @@ class Scene:
         self.faces = np.ascontiguousarray(faces, np.int32)
         self.material_ids = np.ascontiguousarray(ids, np.int32)
         return self
+
+    @classmethod
+    def from_mesh(cls, mesh, **options) -> "Scene":
+        """A trimesh.Trimesh (anything with .vertices and .faces) as a scene with a default material,
+        a camera framing it and a light: :func:`rtlab.scene_from_arrays` (``options`` are its)."""
+        from .arrays import scene_from_arrays
+        return scene_from_arrays(mesh, **options)
 
     @property
     def n_triangles(self) -> int:
