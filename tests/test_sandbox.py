@@ -394,3 +394,20 @@ def test_student_wheel_holds_no_solution(tmp_path):
         for f in sorted((PROJECT_DIR / "kernels").rglob("*.h")):
             z.write(f, f"rtlab/_data/kernels/{f.relative_to(PROJECT_DIR / 'kernels')}")
     assert any(s.endswith(": traverse_kd_stack") for s in wheel_solutions(repo))
+
+
+def test_grader_reads_a_test_log_through_its_own_file(tmp_path):
+    """A test process owns its folder: it can put a link to a secret where its log's name was. The
+    grader quotes the log it opened, never what the name points to now."""
+    from rtlab.labs.processes import _log_tail
+    secret = tmp_path / "grading-secret"
+    secret.write_text("s3cret-value\n")
+    log_path = tmp_path / "test" / "log.txt"
+    log_path.parent.mkdir()
+    with open(log_path, "w+b") as log:
+        log.write(b"Traceback: the kernel's own words\n")
+        log.flush()
+        log_path.unlink()
+        log_path.symlink_to(secret)
+        tail = _log_tail(log)
+    assert "the kernel's own words" in tail and "s3cret" not in tail

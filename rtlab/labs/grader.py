@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import secrets
 import shutil
 import tempfile
@@ -43,12 +42,13 @@ from pathlib import Path
 
 from ..errors import LabError
 from .config import LabConfig, TestSpec, load_config
-from .fixtures import input_bytes, prepare_test, spec_for_run
-from .processes import ChildResult, Limits, ProcessFailed, TestProcess, default_jobs, run_once, shorten
+from .execution import TestExecution
+from .messages import _clean, compile_message, note_text, used_functions
+from .processes import ChildResult, default_jobs, shorten
 from .submission import REFUSED_MARK
 from .trees import StudentTree, build_student_tree
+from .workers import ReferenceWorker, SharedBuilds
 
-MAX_NOTE = 2000          # characters of one note in the report
 MAX_NOTES = 30
 
 
@@ -91,158 +91,9 @@ class GradeReport:
 
 
 # --------------------------------------------------------------------------------------------------
-# messages
-# --------------------------------------------------------------------------------------------------
-def _clean(text: str, roots: list[tuple[Path, str]]) -> str:
-    """Paths of the grader's folders read as the student's: kernels/shared/rt_types.h:57:5."""
-    from .checks import HARNESS_DIR
-    for root, to in [*roots, (HARNESS_DIR, "rtlab/labs/harness/")]:
-        text = text.replace(str(root) + os.sep, to)
-    return text
-
-
-BUILD_RE = re.compile(r"^kernel (?P<file>\S+) failed to compile \(defines: (?P<defines>[^)]*)\):\s*$")
-PLACE_RE = re.compile(r"^\s*(?P<sev>error|warning|fatal error):\s*(?P<place>\S+:\d+:\d+):\s*(?P<msg>.*)$")
-
-
-def compile_message(text: str) -> str:
-    """A KernelBuildError as a student reads it: file:line:col: error: message first, then what was built."""
-    lines = text.splitlines()
-    head = BUILD_RE.match(lines[0]) if lines else None
-    body = []
-    for ln in lines[1:] if head else lines:
-        m = PLACE_RE.match(ln)
-        body.append(f"  {m['place']}: {m['sev']}: {m['msg']}" if m else ln)
-    out = ["does not compile:", *body]
-    if head:
-        out.append(f"(while building {head['file']} with {head['defines'] or 'no defines'})")
-    return "\n".join(out)
-
-
-def used_functions(programs: list[dict], tree: Path) -> set[str] | None:
-    """Functions the kernels of ``programs`` call (through the tree's headers and macros under each
-    program's defines); None when the process recorded no program."""
-    from .cpp import Preprocessor
-    if not programs:
-        return None
-    used: set[str] = set()
-    for p in programs:
-        try:
-            pp = Preprocessor([Path(tree) / "shared"], p["defines"]).run(p["path"])
-        except (OSError, RecursionError, ValueError):
-            return None
-        roots = p["kernels"] or pp.kernels()
-        used |= pp.reachable(roots)
-    return used
-
-
-def note_text(note: str) -> str:
-    return note if len(note) <= MAX_NOTE else note[:MAX_NOTE - 60] + f" ... ({len(note) - MAX_NOTE + 60:,} more characters cut)"
-
-
-# --------------------------------------------------------------------------------------------------
-# the processes
-# --------------------------------------------------------------------------------------------------
-ENV_PASSED = ("PATH", "LANG", "LC_ALL", "PYTHONPATH", "PYOPENCL_CTX", "OCL_ICD_VENDORS", "OCL_ICD_FILENAMES",
-              "CUDA_HOME", "CUDA_PATH", "CUDA_VISIBLE_DEVICES", "LD_LIBRARY_PATH", "RTLAB_DEVICE",
-              "POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_CPU_MAX_CU_COUNT", "NUMBA_DISABLE_JIT")
-
-
-def process_env(test_dir: Path, kernel_root: Path | None, constants: Path, extra: dict | None = None) -> dict:
-    """What a test process's environment holds: nothing of the grader's but the search paths and
-    device choices above (no secret, no token a grading service sets)."""
-    env = {k: os.environ[k] for k in ENV_PASSED if k in os.environ}
-    env.update(HOME=str(test_dir), TMPDIR=str(test_dir), XDG_CACHE_HOME=str(test_dir / "cache"),
-               PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
-               MKL_NUM_THREADS="1", NUMBA_CACHE_DIR=str(test_dir / "cache" / "numba"),
-               RTLAB_CACHE=str(test_dir / "cache"), RTLAB_NO_CACHE="1", POCL_CACHE_DIR=str(test_dir / "pocl"),
-               RTLAB_KERNEL_CONSTANTS=str(constants))
-    if kernel_root is not None:
-        env["RTLAB_KERNEL_DIR"] = str(kernel_root)
-    env.update(extra or {})
-    return env
-
-
-class ReferenceWorker:
-    """The grader's reference process (``run_test --reference``): the installation's kernels, never a
-    submission's, for the speed tests' reference launches and the work budgets' reference counts.
-    Its kernel cache persists between gradings ($RTLAB_CACHE/grader/pocl-reference)."""
-
-    def __init__(self, work: Path, limits: Limits):
-        from ..paths import user_cache_dir
-        self.dir = work / "reference"
-        self.dir.mkdir(mode=0o700, exist_ok=True)
-        self.lock = threading.Lock()
-        self.ready: set[str] = set()
-        cache = user_cache_dir() / "grader" / "pocl-reference"
-        cache.mkdir(parents=True, exist_ok=True)
-        env = {k: v for k, v in os.environ.items() if k not in ("RTLAB_KERNEL_DIR", "RTLAB_KERNEL_CONSTANTS")}
-        env.update(POCL_CACHE_DIR=str(cache), PYTHONUNBUFFERED="1")
-        self.proc = TestProcess(self.dir, env, limits, argv=["--reference"], sandboxed=False)
-        self.proc.ready = True          # no sandbox to close: every request has the run limit
-
-    def _setup(self, name: str, job: dict, inputs: bytes, run_limit: float) -> None:
-        if name in self.ready:
-            return
-        d = self.dir / name
-        d.mkdir(exist_ok=True)
-        (d / "job.json").write_text(json.dumps(job, default=str))
-        (d / "inputs.pkl").write_bytes(inputs)
-        self.proc.request({"op": "setup", "test": name, "dir": str(d)})
-        self.proc.wait_for(("ready",), run_limit)
-        self.ready.add(name)
-
-    def produce(self, name: str, job: dict, inputs: bytes, request: dict, run_limit: float):
-        """(header, arrays, wall ms) of the reference's launch for test ``name``."""
-        with self.lock:
-            self._setup(name, job, inputs, run_limit)
-            t0 = time.perf_counter()
-            self.proc.request({"op": "produce", "test": name, "request": request})
-            header, arrays = self.proc.wait_for(("result",), run_limit)
-            return header, arrays, (time.perf_counter() - t0) * 1e3
-
-    def close(self) -> None:
-        self.proc.close()
-
-
-class SharedBuilds:
-    """The kernel binaries of a grading run's test processes, compiled once a run: the grader copies
-    what a process has just built (its PoCL cache) at the instant between its build and its first
-    launch of submitted code (the process waits for the grader's go), so nothing the submission's
-    code did can be in them, and seeds each new test process's cache with copies. Kept where the
-    test processes cannot write (root's folder, or outside their Landlock domain); off where
-    neither holds."""
-
-    def __init__(self, root: Path, enabled: bool):
-        self.root, self.enabled = root, enabled
-        self.lock = threading.Lock()
-        if enabled:
-            root.mkdir(mode=0o700, exist_ok=True)
-
-    def take(self, cache: Path) -> None:
-        if not self.enabled or not cache.is_dir():
-            return
-        with self.lock:
-            for program in cache.glob("*/*"):
-                target = self.root / program.relative_to(cache)
-                if program.is_dir() and not program.is_symlink() and not target.exists():
-                    shutil.copytree(program, target, symlinks=False,
-                                    ignore=lambda d, names: [n for n in names if (Path(d) / n).is_symlink()])
-
-    def seed(self, cache: Path, user) -> None:
-        if not self.enabled or not any(self.root.iterdir()):
-            return
-        with self.lock:
-            shutil.copytree(self.root, cache, dirs_exist_ok=True)
-        if user is not None:
-            for p in [cache, *cache.rglob("*")]:
-                os.chown(p, user.uid, user.gid, follow_symlinks=False)
-
-
-# --------------------------------------------------------------------------------------------------
 # a grading run
 # --------------------------------------------------------------------------------------------------
-class GradingRun:
+class GradingRun(TestExecution):
     """One grading of one submission: the trees, the tests' processes, the report as it grows."""
 
     def __init__(self, config: LabConfig, submission: Path, specs: list[TestSpec], backend: str, device,
@@ -277,6 +128,7 @@ class GradingRun:
         self.reference: ReferenceWorker | None = None
         self.reference_lock = threading.Lock()
         self.ref_counts: dict = {}
+        self.first_builds: dict[str, threading.Event] = {}     # a test's program signature -> its binaries taken
         from .trees import has_reference
         self.has_reference = has_reference(config.step)
 
@@ -350,191 +202,7 @@ class GradingRun:
         return "; ".join(f"{', '.join(fs)} in {rel} still hold{'s' if len(fs) == 1 else ''} the template's stub (TODO)"
                          for rel, fs in by_file.items())
 
-    # -- a test's folder and processes ------------------------------------------------------------
-    def limits(self, spec: TestSpec) -> Limits:
-        return Limits(self.config.setup_limit, spec.time_limit * self.time_scale, self.config.memory_limit_mb,
-                      self.deadline_at)
-
-    def job(self, spec: TestSpec, mode: str = "once", count_work: bool = False) -> dict:
-        from .checks import HARNESS_DIR
-        run_spec = spec.as_dict()
-        run_spec["params"] = {k: v for k, v in run_spec["params"].items() if k != "seed"}   # rays come made
-        return {"spec": run_spec, "step": self.config.step, "backend": self.backend, "device": self.device,
-                "mode": mode, "count_work": count_work, "memory_limit_mb": self.config.memory_limit_mb,
-                "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)]}
-
-    def test_dir(self, spec: TestSpec, prepared, job: dict, suffix: str = "") -> Path:
-        from . import sandbox
-        d = self.work / "tests" / (spec.name + suffix)
-        (self.work / "tests").mkdir(exist_ok=True)
-        os.chmod(self.work / "tests", 0o711)
-        sandbox.give_to(d, self.user)
-        self.builds.seed(d / "pocl", self.user)
-        for name, data in (("job.json", json.dumps(job, default=str).encode()), ("inputs.pkl", input_bytes(prepared))):
-            (d / name).write_bytes(data)
-            if self.user:
-                os.chmod(d / name, 0o644)
-        return d
-
-    def start_env(self, test_dir: Path) -> dict:
-        return process_env(test_dir, self.tree.root, self.constants)
-
-    def reference_worker(self) -> ReferenceWorker:
-        with self.reference_lock:
-            if self.reference is None:
-                self.reference = ReferenceWorker(self.work, Limits(self.config.setup_limit * 4, 120.0,
-                                                                   self.config.memory_limit_mb, self.deadline_at))
-            return self.reference
-
     # -- tests ----------------------------------------------------------------------------------
-    def prepared_or_error(self, spec: TestSpec):
-        try:
-            prepared = prepare_test(spec_for_run(spec, self.secret))
-        except Exception as e:  # a grader problem, not the student's: say so
-            return None, ChildResult("error", f"grader error while preparing this test (not your code): "
-                                              f"{type(e).__name__}: {e}")
-        return prepared, None
-
-    def expected(self, prepared) -> dict:
-        """What a check compares with: the prepared answers, and what this grading knows of the
-        submission (its step, the functions it left as stubs)."""
-        return {**prepared.expected, "step": self.config.step,
-                "stubs": sorted({f for fs in self.tree.stubs.values() for f in fs})}
-
-    def run_one(self, spec: TestSpec, prepared) -> ChildResult:
-        """A plain test: its process, then the grader's check of what came back; a process whose
-        work count breaks the budget is stopped there."""
-        from .checks import KINDS, work_budget_problem
-        kind = KINDS[spec.kind]
-        count = kind.counts_work(spec) and self.has_reference
-        job = self.job(spec, count_work=count)
-        d = self.test_dir(spec, prepared, job)
-        over = None
-        if count:
-            def over(work):
-                try:
-                    reference = self.reference_counts(spec, prepared)
-                except ProcessFailed:
-                    return False          # check_budget reports it
-                return work_budget_problem(work, reference, float(spec.tolerance["work_budget"])) is not None
-        r = run_once(d, self.start_env(d), self.limits(spec), self.user, self.sandboxed,
-                     on_ready=lambda: self.builds.take(d / "pocl"), on_work=over)
-        if r.status == "ok":
-            r = self.check(spec, kind, prepared, r)
-        if count and r.status not in ("compile_error", "error", "skipped", "deadline"):
-            r = self.check_budget(spec, prepared, r)
-        elif kind.counts_work(spec) and not self.has_reference and r.status == "ok":
-            r = replace(r, output=f"{r.output}\n(work budget not checked: this installation has no reference "
-                                  f"kernels, a student release)")
-        return r
-
-    def check(self, spec, kind, prepared, r: ChildResult) -> ChildResult:
-        from .channel import ChannelError, expect_arrays
-        from .checks import Produced
-        try:
-            arrays = expect_arrays(r.arrays, kind.outputs(spec, prepared.inputs))
-            extra = {k: v for k, v in r.arrays.items() if k not in arrays}
-            outcome = kind.check(spec, prepared.inputs, self.expected(prepared), Produced({**extra, **arrays}, r.info))
-        except ChannelError as e:
-            return replace(r, status="error", output=f"the test process's output is not what the test asked for: {e}")
-        status = "skipped" if outcome.skipped else "ok"
-        return replace(r, status=status, fraction=float(min(max(outcome.fraction, 0.0), 1.0)), output=outcome.output,
-                       data={**r.data, **outcome.data})
-
-    def check_budget(self, spec: TestSpec, prepared, r: ChildResult) -> ChildResult:
-        """The work budget: the reads the process counted on the test's first rays (sent before its
-        own launch, so known even when that one crashes or never ends) against the reference
-        kernel's on the same rays."""
-        from .channel import ChannelError, expect_arrays
-        from .checks import work_budget_problem
-        try:
-            work = expect_arrays({"work": r.info.get("work")} if r.info.get("work") is not None else {},
-                                 {"work": ("int64", (2,))})["work"]
-        except ChannelError as e:
-            if r.status != "ok":
-                return r
-            return replace(r, status="error", fraction=0.0, output=f"{r.output}\nbut the work count is missing: {e}")
-        try:
-            reference = self.reference_counts(spec, prepared)
-        except ProcessFailed as e:
-            return replace(r, status="error", fraction=0.0, output="grader error (not your code): the reference "
-                                                                   f"kernel's count failed: {e.result.output}")
-        data = {**r.data, "work": [int(x) for x in work], "reference_work": [int(x) for x in reference]}
-        problem = work_budget_problem(work, reference, float(spec.tolerance["work_budget"]))
-        if problem:
-            head = {"ok": f"{r.output}\nbut on", "budget": "stopped: on"}.get(r.status, f"({r.output})\non")
-            return replace(r, status="ok", fraction=0.0, data=data, output=f"{head} its first rays it {problem}")
-        if r.status == "budget":
-            return replace(r, status="error", data=data, output="grader error (not your code): stopped for a work "
-                                                                 "budget it keeps")
-        if r.status != "ok":
-            return replace(r, data=data)
-        ratio = max(int(a) / max(int(b), 1) for a, b in zip(work, reference))
-        return replace(r, data=data, output=f"{r.output}; reads {ratio:.2f}x the reference kernel's on its first rays")
-
-    def reference_counts(self, spec: TestSpec, prepared):
-        """(tree reads, triangle reads) of the reference kernel on the test's first rays."""
-        if spec.name in self.ref_counts:
-            return self.ref_counts[spec.name]
-        worker = self.reference_worker()
-        job = {**self.job(spec, count_work=True), "sandbox": False, "check_includes": False}
-        header, arrays, _ = worker.produce(spec.name + ".work", job, input_bytes(prepared), {"probe_only": True}, 120.0)
-        from .channel import expect_arrays
-        self.ref_counts[spec.name] = expect_arrays(arrays, {"work": ("int64", (2,))})["work"]
-        return self.ref_counts[spec.name]
-
-    def run_speed(self, spec: TestSpec, prepared) -> ChildResult:
-        from .channel import ChannelError, expect_arrays
-        from .checks import KINDS, Produced, time_against_reference
-        kind = KINDS[spec.kind]
-        job = self.job(spec, mode="serve")
-        d = self.test_dir(spec, prepared, job)
-        limits = self.limits(spec)
-        worker = self.reference_worker()
-        ref_job = {**self.job(spec), "sandbox": False, "check_includes": False}
-        t0 = time.monotonic()
-        proc = TestProcess(d, self.start_env(d), limits, self.user, sandboxed=self.sandboxed)
-        run_limit = max(5.0, limits.run / 4)
-
-        class Side:
-            def __init__(self, produce, pause=lambda: None, resume=lambda: None):
-                self.produce, self.pause, self.resume = produce, pause, resume
-
-        def valid(header, arrays, camera):
-            out = expect_arrays(arrays, kind.outputs(spec, prepared.inputs, camera))
-            extra = {k: v for k, v in arrays.items() if k not in out}
-            info = header.get("info") if isinstance(header.get("info"), dict) else {}
-            ms = info.get("kernel_ms")
-            info = {"kernel_ms": float(ms) if isinstance(ms, (int, float)) and not isinstance(ms, bool) else float("nan")}
-            return Produced({**extra, **out}, info)
-
-        def submission_produce(request, camera):
-            t = time.perf_counter()
-            proc.request({"op": "produce", "request": request})
-            header, arrays = proc.wait_for(("result",), run_limit)
-            return valid(header, arrays, camera), (time.perf_counter() - t) * 1e3
-
-        def reference_produce(request, camera):
-            header, arrays, wall = worker.produce(spec.name, ref_job, input_bytes(prepared), request, 120.0)
-            return valid(header, arrays, camera), wall
-
-        try:
-            proc.wait_for(("ready",), None)
-            self.builds.take(d / "pocl")
-            worker.produce(spec.name, ref_job, input_bytes(prepared), {}, 120.0)      # compile and warm up
-            outcome = time_against_reference(spec, prepared.inputs, self.expected(prepared),
-                                             Side(submission_produce, proc.pause, proc.resume), Side(reference_produce))
-            return ChildResult("ok", outcome.output, data={**proc._data(), **outcome.data}, seconds=time.monotonic() - t0,
-                               programs=proc.programs, fraction=outcome.fraction)
-        except ProcessFailed as e:
-            return replace(e.result, programs=e.result.programs or proc.programs)
-        except ChannelError as e:
-            return ChildResult("error", f"the test process's output is not what the test asked for: {e}",
-                               seconds=time.monotonic() - t0, programs=proc.programs)
-        finally:
-            proc.resume()
-            proc.close()
-
     def blocked(self, spec: TestSpec) -> list[str]:
         return [r for r in spec.requires if r in self.results and not self.results[r].passed]
 
@@ -546,7 +214,10 @@ class GradingRun:
         return True
 
     def run(self) -> GradeReport:
+        from . import sandbox
         from .checks import KINDS
+        self.notes.append("sandbox: " + (sandbox.describe(self.user) if self.sandboxed else
+                                         f"OFF (${sandbox.SANDBOX_OFF_ENV}): submitted code ran unconfined"))
         self._updated()
         self.tree = build_student_tree(self.config, self.submission, self.work / "submission",
                                        deadline_at=self.deadline_at)
