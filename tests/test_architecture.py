@@ -218,7 +218,7 @@ def test_layout_constants_are_the_headers():
     d = {k: int(v) for k, v in _header_defines().items()}
     assert (bvh.LEAF_BITS, bvh.NODE_FLOAT4S) == (d["BVH_LEAF_BITS"], d["BVH_NODE_STRIDE"])
     assert (bvh_wide.LEAF_BITS, bvh_wide.EMPTY) == (d["WBVH_LEAF_BITS"], d["WBVH_EMPTY"])
-    assert (bvh_wide.node_rows(8), bvh_wide.block_rows(8)) == (d["WBVH_NODE_ROWS"], d["WBVH_BLOCK_ROWS"])
+    assert (bvh_wide.NODE_VECTORS, bvh_wide.BLOCK_VECTORS) == (d["WBVH_NODE_VECTORS"], d["WBVH_BLOCK_VECTORS"])
     assert kernels.PACKET_LANES == d["RT_LANES"] == 8
     assert kdtree.LEAF_TAG == d["KD_LEAF"] and ropes.RECORD_FLOAT4S == d["KD_ROPES_LEAF_STRIDE"]
     assert (tri_data.WALD_ROWS, tri_data.PLUCKER_ROWS) == (d["RT_WALD_ROWS"], d["RT_PLUCKER_ROWS"])

@@ -242,14 +242,16 @@ def test_cpu_device_by_type():
 
 @pytest.mark.skipif(not __import__("rtlab.backends.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
 def test_packet_kernels_compile_as_cuda():
-    """The lane helpers have a CUDA form (arrays and loops): lab step 00 compiles with the packet
-    traversal, for the fused and the conservative box test."""
+    """The lane helpers have a CUDA form (arrays and loops): lab step 00 compiles with the packet and
+    the wide traversal, for the fused and the exact box test."""
     from rtlab.device.kernels import kernel_source
     from rtlab.backends.nvcc import nvcc_resources
-    for v in (PACKET, Variant("bvh-packet", intersection="watertight")):
-        report = nvcc_resources(kernel_source("00_primary", "cuda"),
-                                build_defines(v, SceneFeatures(stack_size=30, near_origin=True)))
-        assert set(report) == {"trace_rays", "trace_ray_grid", "render_primary"}
+    for v in (PACKET, Variant("bvh-packet", intersection="watertight"), Variant("bvh-wide", intersection="watertight"),
+              Variant("bvh-wide", intersection="moller")):
+        for near in (True, False):
+            report = nvcc_resources(kernel_source("00_primary", "cuda"),
+                                    build_defines(v, SceneFeatures(stack_size=30, near_origin=near)))
+            assert set(report) == {"trace_rays", "trace_ray_grid", "render_primary"}
 
 
 def test_bench_cpu_against_embree(backend):

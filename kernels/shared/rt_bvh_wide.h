@@ -39,8 +39,10 @@
 #define WBVH_LEAF_BITS 4           /* at most 15 triangles a leaf (sync with rtlab/accel/bvh_wide.py) */
 #define WBVH_EMPTY (-1)            /* an unused child slot */
 #define WBVH_Q (RT_LANES / 4)      /* float4 rows a lane vector */
-#define WBVH_NODE_ROWS (7 * WBVH_Q)
-#define WBVH_BLOCK_ROWS (10 * WBVH_Q)
+#define WBVH_NODE_VECTORS 7        /* lane vectors a node: lo and hi of each axis, refs */
+#define WBVH_BLOCK_VECTORS 10      /* lane vectors a block: 3 vertices x 3 axes, ids */
+#define WBVH_NODE_ROWS (WBVH_NODE_VECTORS * WBVH_Q)
+#define WBVH_BLOCK_ROWS (WBVH_BLOCK_VECTORS * WBVH_Q)
 
 /* The per-ray constants of the wide traversal */
 typedef struct {

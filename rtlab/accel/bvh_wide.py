@@ -35,8 +35,8 @@ from .bvh import Bvh, BvhBuildParams, load_or_build_bvh
 
 LEAF_BITS = int(kernel_constant("WBVH_LEAF_BITS"))
 EMPTY = int(kernel_constant("WBVH_EMPTY"))
-NODE_VECTORS = 7                 # lane vectors a node: lo, hi of each axis, refs
-BLOCK_VECTORS = 10               # lane vectors a block: 3 vertices x 3 axes, ids
+NODE_VECTORS = int(kernel_constant("WBVH_NODE_VECTORS"))     # lane vectors a node: lo, hi of each axis, refs
+BLOCK_VECTORS = int(kernel_constant("WBVH_BLOCK_VECTORS"))   # lane vectors a block: 3 vertices x 3 axes, ids
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1
 # SAH costs of the binary tree before it is collapsed: a binary node (two box tests) costs two
 # triangle tests, leaves may hold up to 15 triangles (tuned for packets on the issue 15 views: 2-8 %
