@@ -44,7 +44,9 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     whitted = shadows is not None or bounces is not None
     use_kernels(kernels, variant, whitted=whitted)
     sc = load_scene(scene, size)
-    kd_tree(sc)
+    from ..device.scene import KD_FAMILIES, accel_family
+    if accel_family(variant.traversal) in KD_FAMILIES:
+        kd_tree(sc)                  # under a status line (the kd traversals read it; the BVH ones do not)
     if whitted:
         render_whitted_frame(sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel, compact,
                              repeats, check, out, schedule)
