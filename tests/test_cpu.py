@@ -226,6 +226,31 @@ def test_fused_box_test_needs_coordinates_below_the_overflow_bound():
     assert not near_origin(mk(1e20))
 
 
+def test_compiler_output_stays_off_the_terminal(backend, capfd, monkeypatch, tmp_path):
+    """PoCL's compiler prints its warnings to the process's stderr itself ("1 warning generated."):
+    a successful build keeps them in its log and off the terminal unless RTLAB_VERBOSE asks; a
+    failed build shows its messages in the error."""
+    from rtlab.errors import KernelBuildError
+    if backend.name != "opencl":
+        pytest.skip("the OpenCL backend's builds")
+    token = np.random.default_rng().integers(1 << 62)      # a source no cache has seen
+    def source(name, directive):
+        path = tmp_path / name
+        path.write_text(f'{directive} "build output {token} {name}"\n'
+                        f"__kernel void k_{name}(__global float *a) {{ a[get_global_id(0)] = {token}.0f; }}\n")
+        return path
+    monkeypatch.delenv("RTLAB_VERBOSE", raising=False)
+    capfd.readouterr()
+    quiet = backend.compile(source("quiet", "#warning"), {})
+    out, err = capfd.readouterr()
+    assert f"build output {token} quiet" in quiet.build_log and "warning" not in out + err
+    monkeypatch.setenv("RTLAB_VERBOSE", "1")
+    backend.compile(source("loud", "#warning"), {})
+    assert f"build output {token} loud" in capfd.readouterr().err
+    with pytest.raises(KernelBuildError, match=f"build output {token} failed"):
+        backend.compile(source("failed", "#error"), {})
+
+
 def test_cpu_device_by_type():
     import pyopencl as cl
     from rtlab.backends import backend_status, get_backend

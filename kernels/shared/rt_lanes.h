@@ -4,8 +4,9 @@
  * A GPU runs one ray a thread and forms its SIMD groups (warps) from threads. PoCL on a CPU runs a
  * work-group's work-items one after another and vectorises across them only where the code between
  * barriers is straight-line: a traversal loop is not, so each ray runs in scalar registers. The
- * packet traversal (rt_bvh_packet.h) therefore puts a packet of RT_LANES rays into one work-item
- * and writes its arithmetic on lane vectors: OpenCL's float8/int8 (one AVX register each on
+ * CPU traversals therefore put their lanes into one work-item: a packet of RT_LANES rays
+ * (rt_bvh_packet.h), or one ray's RT_LANES child boxes or triangles (rt_bvh_wide.h), and write
+ * their arithmetic on lane vectors: OpenCL's float8/int8 (one AVX register each on
  * x86-64), which PoCL's compiler keeps as vector instructions. CUDA has no vector operators, so
  * there a lane vector is an array and each helper a loop over it: the same code compiles and runs
  * (one thread a packet), it is only not what a GPU is for.
@@ -20,7 +21,9 @@
  *   lf_load_rows    one lane vector stored as RT_LANES / 4 consecutive float4 rows (a wide BVH node's
  *                   boxes, a block of triangles), read through a loader of rt_memory.h
  *   lane_bits       a mask as an int, bit k for lane k (which children of a wide node a ray enters)
- * The helpers that mirror a scalar expression (lf_sub_mul, lf_diff_of_products_rn, lf_dot3_scaled)
+ *   lane_load_row_float, lane_prefetch_rows  one lane's float of such a vector; a cache prefetch
+ * The helpers that mirror a scalar expression (lf_sub_mul, lf_diff_of_products_rn, lf_dot3_scaled,
+ * lf_plane_t_fp64)
  * are written as that one expression, so each lane rounds (and contracts into fused multiply-adds)
  * exactly as the scalar code does: the lane triangle tests return the scalar tests' ids and t.
  */

@@ -99,7 +99,6 @@
 #define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
 #define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
 #define rt_ctz(x) (__ffs(x) - 1)                               /* lowest set bit of x != 0 */
-#define rt_popcount(x) __popc(x)
 typedef unsigned long long rt_u64;
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
@@ -137,7 +136,6 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_shared_atomic_add(p, v) atomic_add((p), (v))
 #define rt_atomic_inc(p) atomic_inc(p)
 #define rt_ctz(x) (31 - clz((x) & -(x)))                       /* lowest set bit of x != 0 (ctz is OpenCL C 2.0) */
-#define rt_popcount(x) popcount(x)
 typedef ulong rt_u64;
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {

@@ -39,8 +39,8 @@ NODE_VECTORS = int(kernel_constant("WBVH_NODE_VECTORS"))     # lane vectors a no
 BLOCK_VECTORS = int(kernel_constant("WBVH_BLOCK_VECTORS"))   # lane vectors a block: 3 vertices x 3 axes, ids
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1
 # SAH costs of the binary tree before it is collapsed: a binary node (two box tests) costs two
-# triangle tests, leaves may hold up to 15 triangles (tuned for packets on the issue 15 views: 2-8 %
-# more Mrays per CPU-second than the GPU BVH's 1.0 and 8)
+# triangle tests, leaves of up to 8 triangles (a block); leaves of 15 and node costs of 1 or 3 were
+# within 5 % on the benchmark views (docs/benchmarks.md)
 CPU_BUILD = BvhBuildParams(max_leaf_size=8, cost_traversal=2.0)
 # ... and the same with spatial splits (SBVH, as the GPU BVH's SPLIT_BUILD), kept where its SAH cost
 # is SPLIT_MIN_GAIN lower (rtlab.accel.bvh_stats)

@@ -33,10 +33,11 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH together in
 # SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same tree, a
 # node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch
-# that mixes both is traced each part its way. Against Embree's single thread on the benchmark views
-# (docs/benchmarks.md, `rtlab bench cpu`): 2x and more on camera rays, above it on diffuse rays,
-# where the kd stack traversal, the CPU default before, ran at 0.5-0.9x. The lab steps and the
-# paper's benches name their variants and keep the paper's.
+# that mixes both is traced each part its way. Against Embree's single thread on the six benchmark
+# views, same rays, 2 cores (docs/benchmarks.md, `rtlab bench cpu`): 2.3-4.7x on camera rays and
+# 1.0-1.8x on diffuse rays with both cores (per core 1.6-2.5x and 0.8-1.0x); the kd stack traversal,
+# the CPU default before, ran at 0.35-0.63x and 0.20-0.32x per core. The lab steps and the paper's
+# benches name their variants and keep the paper's.
 DEFAULT_VARIANT = Variant(traversal="bvh-packet", intersection="watertight")
 GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
 
