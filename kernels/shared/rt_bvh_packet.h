@@ -57,7 +57,7 @@
 #endif
 
 /* The rays of a packet. A lane without a ray (past the end, a NaN/Inf or zero direction) has o = 0,
- * d = 0, inv = 2^64 and tmin = +inf: it enters no box and hits nothing. */
+ * d = 0, inv = 1 and tmin = +inf: it enters no box and hits nothing. */
 typedef struct {
     lanef ox, oy, oz;
     lanef dx, dy, dz;

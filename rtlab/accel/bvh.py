@@ -302,6 +302,16 @@ def _build(st, n, n_bins, max_leaf, ct, ci, alpha_area):
     return st.counts[N_NODES]
 
 
+COMPILING_MESSAGE = "compiling the BVH builder (first run only: numba caches it)"
+
+
+def builder_needs_compiling() -> bool:
+    """Whether numba's cache lacked the builder: its first step, run here on one triangle, was
+    compiled (the rest then compiles too, some seconds: a first run says so, as the kd-tree's does)."""
+    _usable_boxes(np.zeros((3, 3), np.float32), np.arange(3, dtype=np.int64).reshape(1, 3))
+    return bool(_usable_boxes.stats.cache_misses)
+
+
 def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = BvhBuildParams()) -> Bvh:
     """Build the binned-SAH BVH of a triangle mesh (module docstring), with spatial splits when
     params.spatial (rtlab.accel.bvh_splits)."""

@@ -122,6 +122,20 @@ def kd_tree(scene):
         return load_or_build_kdtree(scene.vertices, scene.faces, KdBuildParams(), progress=progress)
 
 
+def traversal_structure(scene, backend, variant) -> None:
+    """Build (or load from the caches) what ``variant`` traverses on ``backend`` under a status line:
+    the kd-tree (kd_tree), or a BVH, saying so when numba compiles its builder on a first run."""
+    from ..device.scene import KD_FAMILIES, accel_family, device_scene
+    if accel_family(variant.traversal) in KD_FAMILIES:
+        kd_tree(scene)
+        return
+    from ..accel.bvh import COMPILING_MESSAGE, builder_needs_compiling
+    with console.status(f"BVH for {scene.name} ({scene.n_triangles:,} triangles)..."):
+        if builder_needs_compiling():
+            console.print(f"{COMPILING_MESSAGE}...")   # the one noticeable wait of a fresh install
+        device_scene(scene, backend).features(variant)
+
+
 def use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
     """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
     still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""

@@ -6,7 +6,7 @@ from typing import Optional
 
 import typer
 
-from .common import block_shape, console, kd_tree, load_scene, use_kernels
+from .common import block_shape, console, load_scene, traversal_structure, use_kernels
 
 
 def render(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
@@ -44,9 +44,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     whitted = shadows is not None or bounces is not None
     use_kernels(kernels, variant, whitted=whitted)
     sc = load_scene(scene, size)
-    from ..device.scene import KD_FAMILIES, accel_family
-    if accel_family(variant.traversal) in KD_FAMILIES:
-        kd_tree(sc)                  # under a status line (the kd traversals read it; the BVH ones do not)
+    traversal_structure(sc, be, variant)
     if whitted:
         render_whitted_frame(sc, be, variant, shadows or "one-pass", bounces or 0, materials, fresnel, compact,
                              repeats, check, out, schedule)
