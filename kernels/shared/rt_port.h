@@ -27,6 +27,7 @@
 #define RT_TRAVERSAL_ROPES 4       /* ropes, Popov et al. 2007 */
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_TRAVERSAL_BVH_PACKET 6  /* the same BVH, RT_LANES rays a work-item in SIMD lanes: for CPUs */
+#define RT_TRAVERSAL_BVH8 7        /* compressed 8-wide BVH, Ylitie, Karras & Laine 2017 (rt_bvh8.h) */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 #define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */
@@ -97,7 +98,14 @@
 #define rt_barrier() __syncthreads()                          /* a block's threads meet */
 #define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
 #define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
+#define rt_clz(x) __clz((int)(x))                              /* leading zero bits of a 32-bit word */
+#define rt_popc(x) __popc((unsigned int)(x))                   /* set bits of a 32-bit word */
 typedef unsigned long long rt_u64;
+/* Byte k (0-3) of w at bits 8-15 of hi, whose bits 0-15 are zero: one byte permute (PRMT) */
+RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
+{
+    return __byte_perm(w, hi, 0x7604u | ((unsigned int)k << 4));
+}
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
 {
@@ -133,7 +141,13 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_barrier() barrier(CLK_LOCAL_MEM_FENCE)
 #define rt_shared_atomic_add(p, v) atomic_add((p), (v))
 #define rt_atomic_inc(p) atomic_inc(p)
+#define rt_clz(x) ((int)clz((unsigned int)(x)))
+#define rt_popc(x) ((int)popcount((unsigned int)(x)))
 typedef ulong rt_u64;
+RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
+{
+    return (((w >> (8 * k)) & 0xFFu) << 8) | hi;
+}
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {
     return (unsigned int)(get_global_id(0) + get_global_size(0) * get_global_id(1));
