@@ -55,6 +55,7 @@ typedef struct {
     unsigned int octinv;     /* 7 - octant, octant bits 4, 2, 1: x, y, z negative */
     unsigned int octinv4;    /* octinv in each byte */
     int neg_x, neg_y, neg_z; /* inv < 0: the hi plane is the near one */
+    unsigned int magic;      /* BVH8_MAGIC */
 } Bvh8Ray;
 
 RT_FN Bvh8Ray bvh8_ray(const Ray *ray)
@@ -67,6 +68,9 @@ RT_FN Bvh8Ray bvh8_ray(const Ray *ray)
     r.octinv = 7u - (unsigned int)(4 * r.neg_x + 2 * r.neg_y + r.neg_z);
     r.octinv4 = r.octinv * 0x01010101u;
     r.tmin = ray->tmin > 0.0f ? ray->tmin : 0.0f;
+    /* BVH8_MAGIC as a run-time value (tmin's sign bit is 0 here): a literal would take the byte
+     * permute's one immediate operand, leaving its four selectors to be rebuilt in registers */
+    r.magic = BVH8_MAGIC | ((unsigned int)rt_as_int(r.tmin) & 0x80000000u);
     return r;
 }
 
@@ -87,12 +91,12 @@ RT_FN unsigned int bvh8_quad_hits(const Bvh8Ray *r, float3 s, float3 off, float 
     unsigned int hits = 0u;
 #pragma unroll
     for (int j = 0; j < 4; ++j) {
-        float tx0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nx, j, BVH8_MAGIC)), s.x, off.x);
-        float ty0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(ny, j, BVH8_MAGIC)), s.y, off.y);
-        float tz0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nz, j, BVH8_MAGIC)), s.z, off.z);
-        float tx1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fx, j, BVH8_MAGIC)), s.x, off.x);
-        float ty1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fy, j, BVH8_MAGIC)), s.y, off.y);
-        float tz1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fz, j, BVH8_MAGIC)), s.z, off.z);
+        float tx0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nx, j, r->magic)), s.x, off.x);
+        float ty0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(ny, j, r->magic)), s.y, off.y);
+        float tz0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nz, j, r->magic)), s.z, off.z);
+        float tx1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fx, j, r->magic)), s.x, off.x);
+        float ty1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fy, j, r->magic)), s.y, off.y);
+        float tz1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fz, j, r->magic)), s.z, off.z);
         float t0 = bvh_span_enter(tx0, ty0, tz0, r->tmin);
         float t1 = bvh_span_exit(tx1, ty1, tz1, t_cut);
 #if RT_CONSERVATIVE

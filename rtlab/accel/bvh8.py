@@ -59,6 +59,7 @@ from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant
 from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, _usable_boxes, load_or_build_bvh
+from .bvh_stats import _clip, _moller
 from .cache import atomic_savez, cache_key, load_or_build
 
 FORMAT_VERSION = "cwbvh8-v1"    # bump when the builder's output for the same inputs changes
@@ -489,7 +490,9 @@ def quantise(node_lo, node_hi, child_lo, child_hi, valid, scene_extent: float):
     """Per node and axis the origin p (float32), exponent e and per slot q_lo, q_hi (0..255) with
     p + q_lo 2^e <= child lo - SLACK_STEPS 2^e and p + q_hi 2^e >= child hi + SLACK_STEPS 2^e,
     computed in float64 (module docstring). Empty slots get q_lo = q_hi = 0."""
-    lo, hi = node_lo.astype(np.float64), node_hi.astype(np.float64)
+    finite = np.isfinite(node_lo).all(axis=1) & np.isfinite(node_hi).all(axis=1)   # an empty mesh's root is not
+    lo = np.where(finite[:, None], node_lo, 0.0).astype(np.float64)
+    hi = np.where(finite[:, None], node_hi, 0.0).astype(np.float64)
     ext = np.maximum(hi - lo, 0.0)
     e_min = np.floor(np.log2(scene_extent)) + MIN_STEP_EXP if scene_extent > 0 else -100.0
     e_min = max(e_min, -100.0)
@@ -642,3 +645,96 @@ def load_or_build_bvh8(vertices: np.ndarray, faces: np.ndarray, params: Bvh8Buil
     path = directory / f"{cache_key(vertices, faces, params, FORMAT_VERSION)}.npz"
     return load_or_build(path, lambda p: _load(p, params), lambda: build_bvh8(vertices, faces, params, cache_dir),
                          _save, "BVH8")
+
+
+# ---- host mirror of the traversal: counts and hits (tests, benchmarks/bench_bvh8_quality.py) ----------
+@njit(cache=True)
+def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertices, faces, scene_lo, scene_hi,
+                depth, origins, directions, tmin, node_rows, tri_rows):
+    """Per ray: (nodes visited, child boxes tested (non-empty slots), triangle tests, closest triangle
+    or -1, its t), walking the decoded boxes in float64 in rt_bvh8.h's order (octant slots, groups on
+    a stack, a node's triangles before its children) with Moller-Trumbore in float64."""
+    n = origins.shape[0]
+    n_nodes = np.zeros(n, np.int64)
+    n_boxes = np.zeros(n, np.int64)
+    n_tris = np.zeros(n, np.int64)
+    hit_tri = np.full(n, -1, np.int64)
+    hit_t = np.full(n, np.inf)
+    for i in range(n):
+        o, d = origins[i], directions[i]
+        inv = np.empty(3)
+        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
+            continue
+        for a in range(3):
+            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
+        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        if not t0 <= t1:
+            continue
+        octinv = 7 - ((4 if np.signbit(d[0]) else 0) + (2 if np.signbit(d[1]) else 0)
+                      + (1 if np.signbit(d[2]) else 0))
+        stack_base = np.empty(depth + 1, np.int64)
+        stack_mask = np.empty(depth + 1, np.int64)
+        sp = 0
+        base, mask = 0, np.int64(0x80000000)
+        best_t, best = np.inf, -1
+        while True:
+            bit = 63 - 32
+            for b in range(31, 23, -1):
+                if (mask >> b) & 1:
+                    bit = b
+                    break
+            slot = (bit - 24) ^ octinv
+            rel = 0
+            for b in range(slot):
+                rel += (mask >> b) & 1
+            node = (base + node_rows * rel) // node_rows
+            mask &= ~(np.int64(1) << bit)
+            if mask & 0xFF000000:
+                stack_base[sp], stack_mask[sp] = base, mask
+                sp += 1
+            n_nodes[i] += 1
+            hits = np.int64(0)
+            for s in range(8):
+                m = meta[node, s]
+                if m == 0:
+                    continue
+                n_boxes[i] += 1
+                e0, x0 = _clip(o, inv, box_lo[node, s], box_hi[node, s], tmin, np.inf)
+                if not (e0 <= x0 and e0 <= best_t):
+                    continue
+                if (imask[node] >> s) & 1:
+                    hits |= np.int64(1) << (24 + (s ^ octinv))
+                else:
+                    hits |= np.int64(m >> 5) << (m & 31)
+            base = child_row[node]
+            mask = (hits & 0xFF000000) | imask[node]
+            tb = tri_row[node]
+            for b in range(23, -1, -1):
+                if (hits >> b) & 1:
+                    k = (tb + tri_rows * b) // tri_rows
+                    tri = tri_ids[k]
+                    n_tris[i] += 1
+                    t = _moller(o, d, vertices, faces[tri])
+                    if t > tmin and (t < best_t or (t == best_t and tri < best)):
+                        best_t, best = t, tri
+            if not (mask & 0xFF000000):
+                if sp == 0:
+                    break
+                sp -= 1
+                base, mask = stack_base[sp], stack_mask[sp]
+        hit_tri[i], hit_t[i] = best, best_t
+    return n_nodes, n_boxes, n_tris, hit_tri, hit_t
+
+
+def traversal_counts_bvh8(b: Bvh8, vertices, faces, origins, directions, tmin: float = 0.0):
+    """_count_bvh8 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
+    lo, hi = decoded_boxes(b)
+    nodes = b.nodes()
+    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.scene.padded_bounds does
+    pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
+    tri_ids = np.asarray(b.tri_ids, np.int64)
+    return _count_bvh8(lo, hi, nodes["meta"].astype(np.int64), nodes["imask"].astype(np.int64),
+                       nodes["child_row"].astype(np.int64), (nodes["tri_row"] - b.tri_row0).astype(np.int64),
+                       tri_ids, np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
+                       bounds[0] - pad, bounds[1] + pad, int(b.depth), np.asarray(origins, np.float32).astype(np.float64),
+                       np.asarray(directions, np.float32).astype(np.float64), float(tmin), NODE_ROWS, TRI_ROWS)
