@@ -26,7 +26,7 @@ from .errors import RtlabError
 from .paths import REFERENCE_KERNEL_DIR
 
 # The headers whose #defines the host reads (kernels/shared/)
-HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh8.h", "rt_bvh_packet.h",
+HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh8.h", "rt_bvh4.h", "rt_bvh_packet.h",
            "rt_lanes.h", "rt_shade.h", "rt_whitted.h")
 
 _DIRECTIVE_RE = re.compile(r"^[ \t]*#[ \t]*(\w+)[ \t]*(.*?)[ \t]*$")

@@ -103,7 +103,7 @@ RT_FN unsigned int bvh8_quad_hits(const Bvh8Ray *r, float3 s, float3 off, float 
         t1 *= RT_BVH_EXIT_SCALE;
 #endif
         if (t0 <= t1)
-            hits |= ((child_bits4 >> (8 * j)) & 0xFFu) << ((bit_index4 >> (8 * j)) & 0xFFu);
+            hits |= rt_byte(child_bits4, j) << rt_byte(bit_index4, j);
     }
     return hits;
 }

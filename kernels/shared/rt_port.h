@@ -28,6 +28,7 @@
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_TRAVERSAL_BVH_PACKET 6  /* the same BVH, RT_LANES rays a work-item in SIMD lanes: for CPUs */
 #define RT_TRAVERSAL_BVH8 7        /* compressed 8-wide BVH, Ylitie, Karras & Laine 2017 (rt_bvh8.h) */
+#define RT_TRAVERSAL_BVH4 8        /* 4-wide BVH, float boxes, nearest child first (rt_bvh4.h) */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 #define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */
@@ -101,6 +102,8 @@
 #define rt_clz(x) __clz((int)(x))                              /* leading zero bits of a 32-bit word */
 #define rt_popc(x) __popc((unsigned int)(x))                   /* set bits of a 32-bit word */
 typedef unsigned long long rt_u64;
+/* Byte k (0-3) of w, zero-extended: one byte permute (PRMT) where shift and mask would take two */
+RT_FN unsigned int rt_byte(unsigned int w, int k) { return __byte_perm(w, 0u, 0x4440u | (unsigned int)k); }
 /* Byte k (0-3) of w at bits 8-15 of hi, whose bits 0-15 are zero: one byte permute (PRMT) */
 RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
 {
@@ -144,6 +147,7 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_clz(x) ((int)clz((unsigned int)(x)))
 #define rt_popc(x) ((int)popcount((unsigned int)(x)))
 typedef ulong rt_u64;
+RT_FN unsigned int rt_byte(unsigned int w, int k) { return (w >> (8 * k)) & 0xFFu; }
 RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
 {
     return (((w >> (8 * k)) & 0xFFu) << 8) | hi;

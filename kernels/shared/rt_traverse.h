@@ -26,6 +26,9 @@
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH8
 #include "rt_bvh8.h"
 #define RT_TRAVERSE_RAY traverse_bvh8
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH4
+#include "rt_bvh4.h"
+#define RT_TRAVERSE_RAY traverse_bvh4
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
 /* trace_rays takes RT_LANES rays a work-item (rt_primary.h); single rays ride in one lane */
 #include "rt_bvh_packet.h"

@@ -22,9 +22,10 @@ def _codes(prefix: str, names) -> dict[str, int]:
 
 # A name is listed here once its kernels exist in both languages. "bvh-packet" is the BVH walked by
 # packets of PACKET_LANES rays a work-item in SIMD lanes (rt_bvh_packet.h): the traversal for CPUs.
-# "bvh8" is the compressed 8-wide BVH (rt_bvh8.h, Ylitie et al. 2017) built from the same binary trees.
+# "bvh8" is the compressed 8-wide BVH (rt_bvh8.h, Ylitie et al. 2017) and "bvh4" a 4-wide one with float
+# boxes (rt_bvh4.h), both collapsed from the same binary trees.
 TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet",
-                                      "bvh8"))
+                                      "bvh8", "bvh4"))
 INTERSECTIONS = _codes("RT_ISECT_", ("moller", "wald", "plucker", "watertight"))
 NODE_MEMORY = _codes("RT_MEM_", ("global", "texture"))
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..accel.bvh import load_or_build_bvh
+from ..accel.bvh4 import load_or_build_bvh4
 from ..accel.bvh8 import load_or_build_bvh8
 from ..accel.bvh_stats import traversal_bvh
 from ..accel.bvh_packet import PACKET_BUILD, packet_node_data
@@ -77,9 +78,17 @@ def bvh8_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, b.depth + 1)
 
 
+def bvh4_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's 4-wide BVH (rt_bvh4.h): nodes and leaf-ordered triangles in node_data; a node pushes
+    at most 3 children, so the stack holds 3 x depth + 1."""
+    b, _ = load_or_build_bvh4(scene.vertices, scene.faces)
+    return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
+
+
 # traversal name -> builder(scene, kd_tree) -> AccelArrays; every traversal not listed reads the
 # kd-tree as built (kd_accel)
-ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel, "bvh8": bvh8_accel}
+ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "bvh-packet": bvh_packet_accel, "bvh8": bvh8_accel,
+                  "bvh4": bvh4_accel}
 # intersection test name -> builder(scene) -> (R F, 4) float32 rows precomputed per triangle; a test
 # not listed reads the vertices and gets a dummy element
 TRI_DATA_BUILDERS = {"wald": lambda scene: wald_tri_data(scene.vertices, scene.faces),
