@@ -1,9 +1,10 @@
-"""The compressed 8-wide BVH (rtlab.accel.bvh8, kernels/shared/rt_bvh8.h): host invariants of the
-build (every triangle reachable, quantised boxes holding the exact child boxes with the slack, leaf
-ranges and child rows in bounds, one-triangle and empty meshes), the host mirror of the traversal
-against the float64 reference, and the "bvh8" traversal on every backend against the reference and
-against the binary "bvh" traversal (the same triangle tests on the same floats: the same ids and t)
-on real scenes, closest and any hit (Whitted shadows), and its counting build.
+"""The wide BVHs: the compressed 8-wide one (rtlab.accel.bvh8, kernels/shared/rt_bvh8.h) and the
+4-wide one with float boxes (rtlab.accel.bvh4, rt_bvh4.h). Host invariants of the builds (every
+triangle reachable, quantised boxes holding the exact child boxes with the slack, leaf ranges and
+child rows in bounds, one-triangle and empty meshes), the host mirror of the 8-wide traversal against
+the float64 reference, and the "bvh8" and "bvh4" traversals on every backend against the reference
+and against the binary "bvh" traversal (the same triangle tests on the same floats: the same ids and
+t) on real scenes, closest and any hit (Whitted shadows), and their counting builds.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import rtlab
 from rtlab.accel.bvh import build_bvh
 from rtlab.accel.bvh8 import (NODE_ROWS, NODE_TRIS, SLACK_STEPS, TRI_ROWS, Bvh8BuildParams, PLAIN_BUILD, SPLIT_BUILD,
                               build_bvh8, collapse, decoded_boxes, quantise, traversal_counts_bvh8, _scene_extent)
+from rtlab.accel.bvh4 import NODE_ROWS as NODE_ROWS4, Bvh4BuildParams, build_bvh4, collapse4, decode_leaf as decode_leaf4
 from rtlab.device.kernels import Variant
 from rtlab.device.tracing import trace
 from rtlab.reference import compare_hits, reference_trace
@@ -115,15 +117,84 @@ def test_quantised_boxes_hold_the_exact_child_boxes_with_the_slack(name, binary)
     assert dlo.shape == lo.shape and np.array_equal(dlo[valid], lo[valid]) and np.array_equal(dhi[valid], hi[valid])
 
 
-def test_empty_mesh_builds_and_traces_to_misses(backend):
+def _reachable4(b):
+    """Triangle ids reachable from the root of a BVH4; checks refs in bounds and child boxes nested."""
+    planes, refs = b.planes(), b.refs()
+    seen, todo = [], [0]
+    while todo:
+        i = todo.pop()
+        for s in range(4):
+            ref = int(refs[i, s])
+            lo, hi = planes[i, 0::2, s], planes[i, 1::2, s]
+            if not np.all(lo <= hi):
+                assert np.all(lo == np.inf) and np.all(hi == -np.inf) and ref == ~0, f"node {i} slot {s}"
+                continue
+            if ref >= 0:
+                assert ref % NODE_ROWS4 == 0 and 0 < ref < b.tri_row0
+                child = ref // NODE_ROWS4
+                live = planes[child, 0] <= planes[child, 1]
+                assert np.all(planes[child, 0::2][:, live] >= lo[:, None]), "child box not nested"
+                assert np.all(planes[child, 1::2][:, live] <= hi[:, None]), "child box not nested"
+                todo.append(child)
+                continue
+            first, count = decode_leaf4(ref)
+            assert 1 <= count <= b.params.leaf_max and b.tri_row0 <= first
+            assert (first - b.tri_row0) % TRI_ROWS == 0 and first + TRI_ROWS * count <= len(b.rows)
+            for k in range(count):
+                row = b.rows[first + TRI_ROWS * k]
+                assert np.all(row[:3] >= lo) and np.all(row[:3] <= hi) or b.binary == "split"
+                seen.append(int(row.view(np.int32)[3]))
+    return np.array(seen, np.int64)
+
+
+@pytest.mark.parametrize("name", ["default", "slivers", "one", "far", "flat"])
+@pytest.mark.parametrize("binary", ["plain", "split"])
+def test_bvh4_build_reaches_every_triangle_with_refs_in_bounds(name, binary):
+    v, f = _meshes()[name]
+    b = build_bvh4(v, f, Bvh4BuildParams(binary=binary))
+    reached = _reachable4(b)
+    usable = np.flatnonzero(np.linalg.norm(np.cross(v[f[:, 1]].astype(np.float64) - v[f[:, 0]],
+                                                    v[f[:, 2]].astype(np.float64) - v[f[:, 0]]), axis=1) > 0)
+    assert set(reached.tolist()) == set(usable.tolist())
+    assert np.array_equal(np.sort(reached), np.sort(b.tri_ids.astype(np.int64)))
+    # the slots' boxes are the collapse's exact float32 child boxes
+    wide, _ = collapse4(build_bvh(v, f, PLAIN_BUILD if binary == "plain" else SPLIT_BUILD), v, f, b.params)
+    kind, c_lo, c_hi = wide[2], wide[3], wide[4]
+    planes = b.planes()
+    for a in range(3):
+        assert np.array_equal(planes[:, 2 * a][kind > 0], c_lo[:, :, a][kind > 0])
+        assert np.array_equal(planes[:, 2 * a + 1][kind > 0], c_hi[:, :, a][kind > 0])
+
+
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
+def test_empty_mesh_builds_and_traces_to_misses(backend, traversal):
     v = np.zeros((3, 3), np.float32)
     f = np.array([[0, 0, 0]])                                           # one zero-area triangle: nothing usable
     b = build_bvh8(v, f)
     assert b.n_nodes == 1 and len(b.tri_ids) == 0 and b.nodes()["meta"].max() == 0
+    b4 = build_bvh4(v, f)
+    assert b4.n_nodes == 1 and len(b4.tri_ids) == 0 and np.all(b4.refs() == ~0)
     scene = _mesh_scene("empty", v, f)
     o = np.zeros((4, 3), np.float32)
     d = np.eye(3, dtype=np.float32)[[0, 1, 2, 0]]
-    assert np.all(trace(scene, o, d, backend=backend, variant="bvh8").tri == -1)
+    assert np.all(trace(scene, o, d, backend=backend, variant=traversal).tri == -1)
+
+
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
+def test_one_triangle_meshes_trace_like_the_reference(backend, traversal):
+    for name in ("one", "flat", "far"):
+        v, f = _meshes()[name]
+        scene = _mesh_scene(name, v, f)
+        rng = np.random.default_rng(2)
+        target = v[f[rng.integers(0, len(f), 500)]].astype(np.float64)
+        w = rng.dirichlet([1, 1, 1], 500)
+        p = np.einsum("nk,nkc->nc", w, target)
+        o = (p + rng.normal(size=(500, 3))).astype(np.float32)
+        d = (p - o).astype(np.float32)
+        got = trace(scene, o, d, backend=backend, variant=Variant(traversal, "watertight"))
+        ref = reference_trace(v, f, o, d)
+        c = compare_hits(ref, got.tri, got.t, v, f, o, d)
+        assert c.n_mismatch == 0, f"{name}: {c.summary()}"
 
 
 @pytest.mark.parametrize("name", ["default", "slivers", "one", "far", "flat"])
@@ -161,13 +232,14 @@ def _case(name):
     return _cases[name]
 
 
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
 @pytest.mark.parametrize("name", list(SCENES))
 @pytest.mark.parametrize("isect", ["watertight", "moller"])
-def test_bvh8_matches_the_reference_and_the_binary_bvh(backend, name, isect):
+def test_wide_bvh_matches_the_reference_and_the_binary_bvh(backend, traversal, name, isect):
     """0 mismatches against the float64 reference; against "bvh" with the same test the very same ids,
     and with the watertight test (t from the plane, in double) the very same t."""
     scene, o, d, ref = _case(name)
-    got = trace(scene, o, d, backend=backend, variant=Variant("bvh8", isect))
+    got = trace(scene, o, d, backend=backend, variant=Variant(traversal, isect))
     c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, d)
     assert c.n_mismatch == 0 and c.t_rel_err_max <= 1e-5, c.summary()
     binary = trace(scene, o, d, backend=backend, variant=Variant("bvh", isect))
@@ -176,42 +248,48 @@ def test_bvh8_matches_the_reference_and_the_binary_bvh(backend, name, isect):
         assert np.array_equal(got.t, binary.t)
 
 
-def test_bvh8_shadows_and_bounces_match_the_binary_bvh(backend):
-    """Any-hit (shadow rays) and closest hit of secondary rays through the Whitted path: the same image
-    and primary hits as the binary BVH."""
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
+def test_wide_bvh_shadows_and_bounces_match_the_binary_bvh(backend, traversal):
+    """Any-hit (shadow rays) and closest hit of secondary rays through the Whitted path (shadows, two
+    bounces, both schedules): the same image as the binary BVH."""
     from rtlab.device.whitted import render_whitted
     scene = rtlab.load_scene("default", size=48)
-    a = render_whitted(scene, backend, Variant("bvh", "watertight"), shadows="two-pass", write_hits=True)
-    b = render_whitted(scene, backend, Variant("bvh8", "watertight"), shadows="two-pass", write_hits=True)
-    assert np.array_equal(a.image, b.image)
+    for schedule, shadows in (("tree", "two-pass"), ("wavefront", "one-pass")):
+        a = render_whitted(scene, backend, Variant("bvh", "watertight"), shadows=shadows, bounces=2,
+                           schedule=schedule)
+        b = render_whitted(scene, backend, Variant(traversal, "watertight"), shadows=shadows, bounces=2,
+                           schedule=schedule)
+        assert np.array_equal(a.image, b.image), schedule
 
 
-def test_bvh8_counting_build_counts_its_reads(backend):
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
+def test_wide_bvh_counting_build_counts_its_reads(backend, traversal):
     """The grader's counting build (RT_COUNT_WORK) compiles with the traversal and counts its reads."""
     from rtlab.device.scene import device_scene
     scene = rtlab.load_scene("default", size=16)
     o, d = camera_rays(scene.camera)
     ds = device_scene(scene, backend)
     ds.reserve_work_counters(len(o))
-    got = trace(scene, o, d, backend=backend, variant=Variant("bvh8", "watertight", count_work=True))
-    plain = trace(scene, o, d, backend=backend, variant=Variant("bvh8", "watertight"))
+    got = trace(scene, o, d, backend=backend, variant=Variant(traversal, "watertight", count_work=True))
+    plain = trace(scene, o, d, backend=backend, variant=Variant(traversal, "watertight"))
     assert np.array_equal(got.tri, plain.tri)
     tree, tris = ds.take_work_counts()
     assert tree > 0 and tree % 1 == 0 and tris >= 0
 
 
 @pytest.mark.gpu
-def test_gpu_bvh8_matches_bvh_on_the_benchmark_views():
+def test_gpu_wide_bvhs_match_bvh_on_the_benchmark_views():
     """On the GPU machine, CUDA and NVIDIA OpenCL: the benchmark views' primary and diffuse rays at
-    256², bvh8 against the float64 reference (0 mismatches) and against bvh (the same ids)."""
+    256², bvh8 and bvh4 against the float64 reference (0 mismatches) and against bvh (the same ids)."""
     from rtlab.backends import get_backend
     from rtlab.benches.rays import make_rays
     for view in ("bunny/far", "dragon/fill", "sponza/inside", "kitchen/inside", "conference/inside"):
         for kind in ("primary", "diffuse"):
             batch = make_rays(view, kind, 256, check_rays=4096)
             for be in (get_backend("cuda"), get_backend("opencl", "NVIDIA")):
-                got = trace(batch.scene, batch.origins, batch.directions, be, Variant("bvh8", "watertight"))
-                e = batch.error(got.tri, got.t)
-                assert e["mismatches"] == 0, f"{view} {kind} {be.name}: {e}"
                 binary = trace(batch.scene, batch.origins, batch.directions, be, Variant("bvh", "watertight"))
-                assert np.mean(got.tri == binary.tri) >= 0.9999, f"{view} {kind} {be.name}"
+                for traversal in ("bvh8", "bvh4"):
+                    got = trace(batch.scene, batch.origins, batch.directions, be, Variant(traversal, "watertight"))
+                    e = batch.error(got.tri, got.t)
+                    assert e["mismatches"] == 0, f"{view} {kind} {be.name} {traversal}: {e}"
+                    assert np.array_equal(got.tri, binary.tri), f"{view} {kind} {be.name} {traversal}"
