@@ -143,10 +143,11 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     Bvh4Entry stack[RT_STACK_SIZE + 3];
     int sp = 0;
     int ref = 0;
+    float t_cut = t_cull(hit->t);      /* changes only where a leaf finds a hit */
     for (;;) {
         /* Inner nodes: enter the nearest child hit */
         while (ref >= 0)
-            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cull(hit->t), stack, &sp);
+            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp);
         /* A leaf: its triangles' rows */
         if (ref != BVH4_NONE) {
             int bits = ~ref;
@@ -156,9 +157,9 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
                 if (intersect_bvh8_tri(RT_SCENE_ARGS, row + BVH8_TRI_ROWS * i, ray, hit) && any_hit)
                     return;
             }
+            t_cut = t_cull(hit->t);
         }
         /* The most recent pending child that may still hold a hit as close as the closest so far */
-        float t_cut = t_cull(hit->t);
         ref = BVH4_NONE;
         while (sp > 0) {
             --sp;

@@ -166,6 +166,7 @@ RT_FN void traverse_bvh8(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     Bvh8Group group;
     group.base = 0;
     group.mask = 0x80000000u;          /* the root: one pending child, at rel 0 (no imask bits) */
+    float t_cut = t_cull(hit->t);      /* changes only where a triangle test finds a hit */
     for (;;) {
         /* Enter the group's next child; keep the rest for later */
         int bit = 31 - rt_clz(group.mask);
@@ -179,17 +180,20 @@ RT_FN void traverse_bvh8(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
         float4 n2 = load_node_data(node_data, row + 2);
         float4 n3 = load_node_data(node_data, row + 3);
         float4 n4 = load_node_data(node_data, row + 4);
-        unsigned int hits = bvh8_child_hits(ray, &r, n0, n1, n2, n3, n4, t_cull(hit->t));
+        unsigned int hits = bvh8_child_hits(ray, &r, n0, n1, n2, n3, n4, t_cut);
         group.base = rt_as_int(n1.x);
         group.mask = (hits & BVH8_NODE_BITS) | ((unsigned int)rt_as_int(n0.w) >> 24);
         /* The node's leaf triangles, now */
         int tri_base = rt_as_int(n1.y);
         unsigned int tri_hits = hits & BVH8_TRI_BITS;
-        while (tri_hits) {
-            int b = 31 - rt_clz(tri_hits);
-            tri_hits &= ~(1u << b);
-            if (intersect_bvh8_tri(RT_SCENE_ARGS, tri_base + BVH8_TRI_ROWS * b, ray, hit) && any_hit)
-                return;
+        if (tri_hits) {
+            do {
+                int b = 31 - rt_clz(tri_hits);
+                tri_hits &= ~(1u << b);
+                if (intersect_bvh8_tri(RT_SCENE_ARGS, tri_base + BVH8_TRI_ROWS * b, ray, hit) && any_hit)
+                    return;
+            } while (tri_hits);
+            t_cut = t_cull(hit->t);
         }
         /* No inner child hit: the most recent pending group */
         if (!(group.mask & BVH8_NODE_BITS)) {
