@@ -1,6 +1,6 @@
 """Host counts of the binary BVH ("bvh"), the compressed 8-wide one ("bvh8") and the 4-wide one ("bvh4")
 on the benchmark views: node visits, child boxes tested, triangle tests per ray, each from a host mirror
-of its traversal (rtlab.accel.bvh_stats, bvh8, bvh4), and an instruction estimate from the SASS of each
+of its traversal (rtlab.accel.bvh_stats, bvh_wide_stats), and an instruction estimate from the SASS of each
 traversal's node loop and triangle test (sm_90, nvcc 13.0, CUDA trace_rays with the watertight test:
 rtlab's own count, not a measurement on the GPU; rerun with --node-instr after kernel changes).
 
@@ -12,8 +12,9 @@ import argparse
 
 import numpy as np
 
-from rtlab.accel.bvh4 import load_or_build_bvh4, traversal_counts_bvh4
-from rtlab.accel.bvh8 import load_or_build_bvh8, traversal_counts_bvh8
+from rtlab.accel.bvh4 import load_or_build_bvh4
+from rtlab.accel.bvh8 import load_or_build_bvh8
+from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4, traversal_counts_bvh8
 from rtlab.accel.bvh_stats import traversal_bvh, traversal_counts
 from rtlab.benches.rays import diffuse_rays, view_scene
 from rtlab.reference import reference_trace

@@ -13,8 +13,10 @@ import pytest
 
 import rtlab
 from rtlab.accel.bvh import build_bvh
-from rtlab.accel.bvh8 import (NODE_ROWS, NODE_TRIS, SLACK_STEPS, TRI_ROWS, Bvh8BuildParams, PLAIN_BUILD, SPLIT_BUILD,
-                              build_bvh8, collapse, decoded_boxes, quantise, traversal_counts_bvh8, _scene_extent)
+from rtlab.accel.bvh8 import (NODE_ROWS, NODE_TRIS, SLACK_STEPS, TRI_ROWS, Bvh8BuildParams, build_bvh8, collapse8,
+                              decoded_boxes, quantise, _scene_extent)
+from rtlab.accel.bvh_collapse import PLAIN_BUILD, SPLIT_BUILD
+from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4, traversal_counts_bvh8
 from rtlab.accel.bvh4 import NODE_ROWS as NODE_ROWS4, Bvh4BuildParams, build_bvh4, collapse4, decode_leaf as decode_leaf4
 from rtlab.device.kernels import Variant
 from rtlab.device.tracing import trace
@@ -98,7 +100,7 @@ def test_build_reaches_every_triangle_with_rows_in_bounds(name, binary):
 def test_quantised_boxes_hold_the_exact_child_boxes_with_the_slack(name, binary):
     v, f = _meshes()[name]
     bvh = build_bvh(v, f, binary)
-    wide, _ = collapse(bvh, v, f)
+    wide, _ = collapse8(bvh, v, f)
     n_lo, n_hi, kind, c_lo, c_hi = wide[:5]
     valid = kind > 0
     p, e, q_lo, q_hi = quantise(n_lo, n_hi, c_lo, c_hi, valid, _scene_extent(bvh.bounds))
@@ -198,7 +200,7 @@ def test_one_triangle_meshes_trace_like_the_reference(backend, traversal):
 
 
 @pytest.mark.parametrize("name", ["default", "slivers", "one", "far", "flat"])
-def test_host_mirror_finds_the_reference_hits(name):
+def test_host_mirrors_find_the_reference_hits(name):
     v, f = _meshes()[name]
     scene = _mesh_scene(name, v, f)
     rng = np.random.default_rng(5)
@@ -206,11 +208,11 @@ def test_host_mirror_finds_the_reference_hits(name):
     o = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), (600, 3)).astype(np.float32)
     target = v[f[rng.integers(0, len(f), 600)]].mean(axis=1)
     d = (target - o).astype(np.float32)
-    b = build_bvh8(v, f)
-    _, _, _, tri, t = traversal_counts_bvh8(b, v, f, o, d)
     ref = reference_trace(v, f, o, d)
-    c = compare_hits(ref, tri, t.astype(np.float32), v, f, o, d)
-    assert c.n_mismatch == 0, c.summary()
+    for counts in (traversal_counts_bvh8(build_bvh8(v, f), v, f, o, d), traversal_counts_bvh4(build_bvh4(v, f), v, f, o, d)):
+        _, _, _, tri, t = counts
+        c = compare_hits(ref, tri, t.astype(np.float32), v, f, o, d)
+        assert c.n_mismatch == 0, c.summary()
 
 
 # ---- the traversal on the backends -------------------------------------------------------------------

@@ -26,8 +26,9 @@ import numpy as np
 from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant
-from .bvh import LEAF_BITS as BIN_LEAF_BITS, MAX_LEAF as BIN_MAX_LEAF, Bvh, _usable_boxes, load_or_build_bvh
-from .bvh8 import PLAIN_BUILD, SPLIT_BUILD, SPLIT_MIN_GAIN, TRI_ROWS, _collapse_costs, _full_tree, _half_area, _wide_nodes
+from .bvh import Bvh
+from .bvh8 import TRI_ROWS
+from .bvh_collapse import PLAIN_BUILD, SPLIT_BUILD, collapse, collapse_best
 from .cache import atomic_savez, cache_key, load_or_build
 
 FORMAT_VERSION = "bvh4f-v1"
@@ -92,23 +93,8 @@ def decode_leaf(ref: int) -> tuple[int, int]:
 
 
 def collapse4(bvh: Bvh, vertices, faces, params: Bvh4BuildParams = Bvh4BuildParams()):
-    """(wide-tree arrays of rtlab.accel.bvh8._wide_nodes with 4 slots, cost)."""
-    vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
-    faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
-    tri_lo, tri_hi, _ = _usable_boxes(vertices, faces)
-    lo, hi, left, right, tri, count = _full_tree(bvh.child_lo, bvh.child_hi, bvh.child_ref.astype(np.int64),
-                                                 np.asarray(bvh.objects, np.int64), tri_lo, tri_hi, BIN_LEAF_BITS,
-                                                 BIN_MAX_LEAF)
-    cost, leaf, split, inner_k = _collapse_costs(lo, hi, left, right, count, float(params.cost_node),
-                                                 float(params.cost_prim), int(params.leaf_max), WIDTH)
-    wide = _wide_nodes(lo, hi, left, right, tri, count, leaf, split, inner_k, WIDTH, int(count[0]) + 1)
-    area = _half_area(lo[0].astype(np.float64), hi[0].astype(np.float64))
-    if left[0] < 0:
-        root = float(cost[0, 1])
-    else:
-        k = int(inner_k[0])
-        root = area * params.cost_node + float(cost[left[0], k] + cost[right[0], WIDTH - k])
-    return wide, (root / area if area > 0 else 0.0)
+    """(wide-tree arrays, cost) of the binary BVH collapsed to 4 children a node (rtlab.accel.bvh_collapse)."""
+    return collapse(bvh, vertices, faces, WIDTH, params.leaf_max, params.cost_node, params.cost_prim)
 
 
 def _pack(vertices, faces, wide) -> tuple[np.ndarray, int, np.ndarray]:
@@ -143,14 +129,8 @@ def build_bvh4(vertices: np.ndarray, faces: np.ndarray, params: Bvh4BuildParams 
     t0 = time.perf_counter()
     vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
-    candidates = []
-    for name, bparams in (("plain", PLAIN_BUILD), ("split", SPLIT_BUILD)):
-        if params.binary in ("auto", name):
-            binary, _ = load_or_build_bvh(vertices, faces, bparams, cache_dir)
-            candidates.append((name, binary) + collapse4(binary, vertices, faces, params))
-    if len(candidates) == 2 and not candidates[1][3] <= (1.0 - SPLIT_MIN_GAIN) * candidates[0][3]:
-        candidates = candidates[:1]
-    name, binary, wide, cost = candidates[-1]
+    name, binary, wide, cost = collapse_best(vertices, faces, params.binary, WIDTH, params.leaf_max,
+                                             params.cost_node, params.cost_prim, cache_dir)
     used = wide[-2]
     if len(used) and np.abs(vertices[faces[used]]).max() > MAX_COORD:
         raise SceneError("BVH4: coordinates beyond 1e18, where its fused box test could overflow: use the bvh "
@@ -188,96 +168,3 @@ def load_or_build_bvh4(vertices: np.ndarray, faces: np.ndarray, params: Bvh4Buil
     path = directory / f"{cache_key(vertices, faces, params, FORMAT_VERSION)}.npz"
     return load_or_build(path, lambda p: _load(p, params), lambda: build_bvh4(vertices, faces, params, cache_dir),
                          _save, "BVH4")
-
-
-# ---- host mirror of the traversal: counts and hits (tests, benchmarks/bench_wide_bvh_quality.py) -------
-from numba import njit  # noqa: E402
-
-from .bvh_stats import _clip, _moller  # noqa: E402
-
-
-@njit(cache=True)
-def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo, scene_hi, depth, origins,
-                directions, tmin, node_rows, tri_rows, leaf_bits):
-    """Per ray: (nodes visited, child boxes tested (non-empty slots), triangle tests, closest triangle
-    or -1, its t), in rt_bvh4.h's order (nearest child first, the others pushed farthest first with
-    their entry distances, popped ones beyond the closest hit dropped), exact boxes in float64,
-    Moller-Trumbore in float64."""
-    n = origins.shape[0]
-    n_nodes = np.zeros(n, np.int64)
-    n_boxes = np.zeros(n, np.int64)
-    n_tris = np.zeros(n, np.int64)
-    hit_tri = np.full(n, -1, np.int64)
-    hit_t = np.full(n, np.inf)
-    lo = np.empty(3)
-    hi = np.empty(3)
-    for i in range(n):
-        o, d = origins[i], directions[i]
-        inv = np.empty(3)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
-            continue
-        for a in range(3):
-            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
-        if not t0 <= t1:
-            continue
-        stack_ref = np.empty(3 * depth + 4, np.int64)
-        stack_t = np.empty(3 * depth + 4)
-        sp = 0
-        ref = 0
-        best_t, best = np.inf, -1
-        keys = np.empty(4)
-        kref = np.empty(4, np.int64)
-        while True:
-            while ref >= 0:
-                node = ref // node_rows
-                n_nodes[i] += 1
-                k = 0
-                for s in range(4):
-                    for a in range(3):
-                        lo[a], hi[a] = planes[node, 2 * a, s], planes[node, 2 * a + 1, s]
-                    if not lo[0] <= hi[0]:
-                        continue
-                    n_boxes[i] += 1
-                    e0, x0 = _clip(o, inv, lo, hi, tmin, np.inf)
-                    if e0 <= x0 and e0 <= best_t:
-                        keys[k], kref[k] = e0, refs[node, s]
-                        k += 1
-                if k == 0:
-                    ref = -(1 << 31)
-                    break
-                order = np.argsort(keys[:k])
-                for j in range(k - 1, 0, -1):
-                    stack_ref[sp], stack_t[sp] = kref[order[j]], keys[order[j]]
-                    sp += 1
-                ref = kref[order[0]]
-            if ref != -(1 << 31):
-                bits = ~ref
-                first, count = bits >> leaf_bits, bits & ((1 << leaf_bits) - 1)
-                for j in range(count):
-                    tri = tri_rows_ids[(first - tri_row0) // tri_rows + j]
-                    n_tris[i] += 1
-                    t = _moller(o, d, vertices, faces[tri])
-                    if t > tmin and (t < best_t or (t == best_t and tri < best)):
-                        best_t, best = t, tri
-            ref = -(1 << 31)
-            while sp > 0:
-                sp -= 1
-                if stack_t[sp] <= best_t:
-                    ref = stack_ref[sp]
-                    break
-            if ref == -(1 << 31):
-                break
-        hit_tri[i], hit_t[i] = best, best_t
-    return n_nodes, n_boxes, n_tris, hit_tri, hit_t
-
-
-def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0):
-    """_count_bvh4 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
-    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.scene.padded_bounds does
-    pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
-    return _count_bvh4(b.planes().astype(np.float64), b.refs().astype(np.int64), np.asarray(b.tri_ids, np.int64),
-                       b.tri_row0, np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
-                       bounds[0] - pad, bounds[1] + pad, int(b.depth), np.asarray(origins, np.float32).astype(np.float64),
-                       np.asarray(directions, np.float32).astype(np.float64), float(tmin), NODE_ROWS, TRI_ROWS,
-                       LEAF_BITS)
