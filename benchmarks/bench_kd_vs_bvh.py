@@ -16,7 +16,6 @@ import argparse
 import statistics
 import time
 
-import numpy as np
 
 from rtlab import load_scene
 from rtlab.accel.bvh import build_bvh

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 from collections import defaultdict
 
-import numpy as np
 
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant

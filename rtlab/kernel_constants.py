@@ -16,12 +16,11 @@ depend on a student's copy. Imports nothing from rtlab but ``paths``, so every l
 """
 from __future__ import annotations
 
-import ast
-import operator
 import re
 from functools import lru_cache
 from pathlib import Path
 
+from .cexpr import ExprError, evaluate, tokens
 from .errors import RtlabError
 from .paths import REFERENCE_KERNEL_DIR
 
@@ -31,37 +30,14 @@ HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bv
 
 _DIRECTIVE_RE = re.compile(r"^[ \t]*#[ \t]*(\w+)[ \t]*(.*?)[ \t]*$")
 _COMMENT_RE = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)
-_C_NUMBER_RE = re.compile(r"(?<![\w.])((?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?)[fFuUlL]*(?![\w.])")
-_OPERATORS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
-              ast.LShift: operator.lshift, ast.RShift: operator.rshift, ast.BitOr: operator.or_,
-              ast.BitAnd: operator.and_, ast.USub: operator.neg, ast.UAdd: operator.pos, ast.Invert: operator.invert}
 
 
 def _evaluate(expression: str, known: dict[str, int | float]) -> int | float | None:
     """The value of a C constant expression over numbers and ``known`` names, or None when it is
-    anything else (a qualifier, a call, a comparison...)."""
+    anything else (a qualifier, a call, a cast...)."""
     try:
-        tree = ast.parse(_C_NUMBER_RE.sub(r"\1", expression.strip()), mode="eval")
-    except SyntaxError:
-        return None
-
-    def value(node):
-        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
-            return node.value
-        if isinstance(node, ast.Name) and node.id in known:
-            return known[node.id]
-        if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
-            left, right = value(node.left), value(node.right)
-            if isinstance(node.op, ast.Div) and isinstance(left, int) and isinstance(right, int):
-                return int(left / right)                      # C's integer division truncates
-            return _OPERATORS[type(node.op)](left, right)
-        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPERATORS:
-            return _OPERATORS[type(node.op)](value(node.operand))
-        raise ValueError(ast.dump(node))
-
-    try:
-        return value(tree.body)
-    except (ValueError, TypeError, ZeroDivisionError):
+        return evaluate(tokens(expression.strip()), known)
+    except ExprError:
         return None
 
 

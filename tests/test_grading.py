@@ -715,8 +715,9 @@ def test_lab00_from_the_release_reaches_full_marks(release, tmp_path):
     env = dict(os.environ, PYTHONPATH=str(release))
     env.pop("RTLAB_KERNEL_DIR", None)
 
-    def rtlab(*args, **extra_env):
-        return subprocess.run([sys.executable, "-m", "rtlab", *map(str, args)], env={**env, **extra_env},
+    def rtlab(*args, **extra_env):      # wide enough that no path is wrapped
+        return subprocess.run([sys.executable, "-m", "rtlab", *map(str, args)], env={**env, "COLUMNS": "400",
+                                                                                     **extra_env},
                               capture_output=True, text=True, cwd=tmp_path)
 
     r = rtlab("grade", STEP, mine, "--out", tmp_path / "r00.json", "--require-full-marks")

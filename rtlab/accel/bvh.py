@@ -24,6 +24,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -31,6 +32,7 @@ from numba import njit, prange
 from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant
+from .bvh_sah import best_object_split, half_area, partition_by_bin, range_box
 from .bvh_splits import best_spatial_split, spatial_partition
 from .cache import atomic_savez, cache_key, load_or_build
 
@@ -129,210 +131,175 @@ def _usable_boxes(vertices, faces):
 
 
 @njit(cache=True)
-def _range_box(order, start, end, tri_lo, tri_hi, centroid, box):
-    """box[0:3], box[3:6]: bounds of the triangles; box[6:9], box[9:12]: of their centroids."""
-    box[0:3] = np.inf
-    box[3:6] = -np.inf
-    box[6:9] = np.inf
-    box[9:12] = -np.inf
-    for j in range(start, end):
-        t = order[j]
-        for a in range(3):
-            box[a] = min(box[a], tri_lo[t, a])
-            box[3 + a] = max(box[3 + a], tri_hi[t, a])
-            box[6 + a] = min(box[6 + a], centroid[t, a])
-            box[9 + a] = max(box[9 + a], centroid[t, a])
-
-
-@njit(cache=True, inline="always")
-def _half_area(dx, dy, dz):
-    return dx * dy + dy * dz + dz * dx
-
-
-@njit(cache=True, inline="always")
-def _bin_of(c, lo, scale, n_bins):
-    return min(int((c - lo) * scale), n_bins - 1)
-
-
-@njit(cache=True)
-def _best_split(order, start, end, tri_lo, tri_hi, centroid, box, n_bins, bins, bin_n, right_cost, right_box):
-    """Binned SAH over the three axes: (axis, bin k: centroids in bins < k go left, cost in
-    half-area x triangles, half-area of the two children's overlap); axis -1 when no plane
-    separates the centroids. bins[b] holds the bounds of bin b (lo xyz, hi xyz)."""
-    best_axis, best_k, best_cost, overlap = -1, 0, np.inf, np.inf
-    for a in range(3):
-        extent = box[9 + a] - box[6 + a]
-        if not extent > 0.0:
-            continue
-        scale = n_bins / extent
-        bins[:, 0:3] = np.inf
-        bins[:, 3:6] = -np.inf
-        bin_n[:] = 0
-        for j in range(start, end):
-            t = order[j]
-            b = _bin_of(centroid[t, a], box[6 + a], scale, n_bins)
-            bin_n[b] += 1
-            for m in range(3):
-                bins[b, m] = min(bins[b, m], tri_lo[t, m])
-                bins[b, 3 + m] = max(bins[b, 3 + m], tri_hi[t, m])
-        # Sweep from the right: half area times count of bins >= k, then from the left
-        x0 = y0 = z0 = np.inf
-        x1 = y1 = z1 = -np.inf
-        count = 0
-        for k in range(n_bins - 1, 0, -1):
-            count += bin_n[k]
-            x0, y0, z0 = min(x0, bins[k, 0]), min(y0, bins[k, 1]), min(z0, bins[k, 2])
-            x1, y1, z1 = max(x1, bins[k, 3]), max(y1, bins[k, 4]), max(z1, bins[k, 5])
-            right_cost[k] = _half_area(x1 - x0, y1 - y0, z1 - z0) * count if count > 0 else 0.0
-            right_box[k, 0], right_box[k, 1], right_box[k, 2] = x0, y0, z0
-            right_box[k, 3], right_box[k, 4], right_box[k, 5] = x1, y1, z1
-        x0 = y0 = z0 = np.inf
-        x1 = y1 = z1 = -np.inf
-        count = 0
-        for k in range(1, n_bins):
-            count += bin_n[k - 1]
-            x0, y0, z0 = min(x0, bins[k - 1, 0]), min(y0, bins[k - 1, 1]), min(z0, bins[k - 1, 2])
-            x1, y1, z1 = max(x1, bins[k - 1, 3]), max(y1, bins[k - 1, 4]), max(z1, bins[k - 1, 5])
-            if count == 0 or count == end - start:
-                continue
-            cost = _half_area(x1 - x0, y1 - y0, z1 - z0) * count + right_cost[k]
-            if cost < best_cost:
-                best_axis, best_k, best_cost = a, k, cost
-                r = right_box[k]
-                dx, dy, dz = min(x1, r[3]) - max(x0, r[0]), min(y1, r[4]) - max(y0, r[1]), min(z1, r[5]) - max(z0, r[2])
-                overlap = _half_area(dx, dy, dz) if dx >= 0.0 and dy >= 0.0 and dz >= 0.0 else 0.0
-    return best_axis, best_k, best_cost, overlap
-
-
-@njit(cache=True)
-def _partition(order, start, end, centroid, axis, k, box, n_bins):
-    """Move centroids in bins < k to the front (the same binning as _best_split); returns the
-    first index of the right part."""
-    lo = box[6 + axis]
-    scale = n_bins / (box[9 + axis] - lo)
-    i, j = start, end - 1
-    while i <= j:
-        t = order[i]
-        if _bin_of(centroid[t, axis], lo, scale, n_bins) < k:
-            i += 1
-        else:
-            order[i], order[j] = order[j], order[i]
-            j -= 1
-    return i
-
-
-@njit(cache=True)
 def _shift_right(order, mid, end, by):
     """Move order[mid:end] up by ``by`` slots (the left child's share of the free slots)."""
     for j in range(end - 1, mid - 1, -1):
         order[j + by] = order[j]
 
 
-@njit(cache=True)
-def _build(order, n, ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices, faces, n_bins, max_leaf, ct, ci,
-           alpha_area):
-    """The tree over references order[:n] (ids into ref_lo, ref_hi, centroid, ref_tri); the rest
-    of ``order`` is the pool that spatial splits (alpha_area >= 0) may fill, n_ids the first free
-    reference id. Returns child_lo, child_hi, child_ref, depth, objects (triangle ids)."""
+# The build's work stack: one record a range still to build, depth first
+WORK_ITEM = np.dtype([("parent", np.int64),     # node whose child this range becomes; -1: the root
+                      ("slot", np.int64),       # which of its two children
+                      ("start", np.int64),      # order[start:end], the range's references
+                      ("end", np.int64),
+                      ("above", np.int64),      # inner nodes above it
+                      ("cap_end", np.int64)])   # end of the slots the range may grow into (spatial splits)
+# What the build has made so far, in BuildState.counts
+N_NODES, N_OBJECTS, TOP, N_IDS, DEPTH = 0, 1, 2, 3, 4
+
+
+class BuildState(NamedTuple):
+    """Everything one build reads and writes, passed to its steps (numba takes a tuple of arrays)."""
+    order: np.ndarray          # reference ids, ranges of it become nodes; the tail is the spatial pool
+    ref_lo: np.ndarray         # reference boxes and centroids, and the triangle of each reference
+    ref_hi: np.ndarray
+    centroid: np.ndarray
+    ref_tri: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    child_lo: np.ndarray       # the output: child boxes and refs a node, the leaves' triangle ids
+    child_hi: np.ndarray
+    child_ref: np.ndarray
+    objects: np.ndarray
+    work: np.ndarray           # WORK_ITEM records
+    counts: np.ndarray         # N_NODES, N_OBJECTS, TOP, N_IDS, DEPTH
+    box: np.ndarray            # scratch: the range's bounds (rtlab.accel.bvh_sah.range_box)
+    bins: np.ndarray           # scratch of the object and spatial split searches
+    bin_n: np.ndarray
+    right_cost: np.ndarray
+    right_box: np.ndarray
+    s_bins: np.ndarray
+    s_enter: np.ndarray
+    s_leave: np.ndarray
+    s_right_n: np.ndarray
+    piece: np.ndarray
+    side: np.ndarray
+    pieces: np.ndarray
+
+
+def _new_state(order, n, ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices, faces, n_bins, spatial) -> BuildState:
     pool = order.shape[0]
-    spatial = alpha_area >= 0.0 and pool > n
     cap = max(1, 2 * pool)
-    child_lo = np.zeros((cap, 2, 3), np.float32)
-    child_hi = np.zeros((cap, 2, 3), np.float32)
-    child_ref = np.full((cap, 2), -1, np.int32)            # ~0: an empty leaf
-    objects = np.empty(pool, np.int32)
-    n_objects = 0
-    bins = np.empty((n_bins, 6), np.float32)
-    bin_n = np.empty(n_bins, np.int64)
-    right_cost = np.empty(n_bins)
-    right_box = np.empty((n_bins, 6))
-    box = np.empty(12)
-    s_bins = np.empty((n_bins, 6))
-    s_enter = np.zeros(n_bins, np.int64)
-    s_leave = np.zeros(n_bins, np.int64)
-    s_right_n = np.zeros(n_bins, np.int64)
-    piece = np.empty(6, np.float32)
-    side = np.empty(pool if spatial else 1, np.int8)
-    pieces = np.empty((pool if spatial else 1, 2, 6), np.float32)
-    # Work items, depth first: (parent node or -1 for the root, child slot, start, end, inner
-    # nodes above, end of the slots the range may grow into)
-    work = np.empty((2 * pool + 8, 6), np.int64)
-    n_nodes = 1
-    depth = 1
-    top = 0
+    counts = np.zeros(5, np.int64)
+    counts[N_NODES], counts[N_IDS], counts[DEPTH] = 1, n_ids, 1
+    return BuildState(order, ref_lo, ref_hi, centroid, ref_tri, vertices, faces,
+                      np.zeros((cap, 2, 3), np.float32), np.zeros((cap, 2, 3), np.float32),
+                      np.full((cap, 2), -1, np.int32),           # ~0: an empty leaf
+                      np.empty(pool, np.int32), np.zeros(2 * pool + 8, WORK_ITEM), counts, np.empty(12),
+                      np.empty((n_bins, 6), np.float32), np.empty(n_bins, np.int64), np.empty(n_bins),
+                      np.empty((n_bins, 6)), np.empty((n_bins, 6)), np.zeros(n_bins, np.int64),
+                      np.zeros(n_bins, np.int64), np.zeros(n_bins, np.int64), np.empty(6, np.float32),
+                      np.empty(pool if spatial else 1, np.int8),
+                      np.empty((pool if spatial else 1, 2, 6), np.float32))
+
+
+@njit(cache=True)
+def _push(st, parent, slot, start, end, above, cap_end):
+    w = st.work[st.counts[TOP]]
+    w["parent"], w["slot"], w["start"], w["end"], w["above"], w["cap_end"] = parent, slot, start, end, above, cap_end
+    st.counts[TOP] += 1
+
+
+@njit(cache=True)
+def _make_leaf(st, parent, slot, start, end, above):
+    """The range becomes a leaf: its triangles appended to the objects, the parent's ref to them."""
+    count = end - start
+    st.child_ref[parent, slot] = ~((st.counts[N_OBJECTS] << LEAF_BITS) | count)
+    for j in range(start, end):
+        st.objects[st.counts[N_OBJECTS]] = st.ref_tri[st.order[j]]
+        st.counts[N_OBJECTS] += 1
+    st.counts[DEPTH] = max(st.counts[DEPTH], above)
+
+
+@njit(cache=True)
+def _object_split(st, start, end, cap_end, axis, k, n_bins):
+    """Partition the range by the binned plane (or in the middle of its list when its centroids
+    coincide) and share the range's free slots by the children's counts: (n_left, right, n_right)."""
+    count = end - start
+    if axis >= 0:
+        mid = partition_by_bin(st.order, start, end, st.centroid, axis, k, st.box, n_bins)
+    else:
+        mid = start + count // 2
+    n_left, right, n_right = mid - start, mid, end - mid
+    by = (cap_end - end) * n_left // count
+    if by > 0:
+        _shift_right(st.order, mid, end, by)
+        right += by
+    return n_left, right, n_right
+
+
+@njit(cache=True)
+def _choose_split(st, start, end, cap_end, n_bins, alpha_area):
+    """The cheapest split of the range: (object axis, bin k, spatial axis or -1, spatial bin, cost)."""
+    count = end - start
+    axis, k, cost, overlap = -1, 0, np.inf, np.inf
+    if count > 1:
+        axis, k, cost, overlap = best_object_split(st.order, start, end, st.ref_lo, st.ref_hi, st.centroid, st.box, n_bins,
+                                             st.bins, st.bin_n, st.right_cost, st.right_box)
+    s_axis, s_k = -1, 0
+    spatial = alpha_area >= 0.0 and st.order.shape[0] > 0
+    if spatial and count > 1 and cap_end > end and overlap > alpha_area:
+        s_axis, s_k, s_cost = best_spatial_split(st.order, start, end, st.ref_lo, st.ref_hi, st.ref_tri, st.vertices,
+                                                 st.faces, st.box, n_bins, st.s_bins, st.s_enter, st.s_leave,
+                                                 st.right_cost, st.s_right_n, st.piece)
+        if s_axis >= 0 and s_cost < cost:
+            cost = s_cost
+        else:
+            s_axis = -1
+    return axis, k, s_axis, s_k, cost
+
+
+@njit(cache=True)
+def _build(st, n, n_bins, max_leaf, ct, ci, alpha_area):
+    """The tree over references order[:n]; the rest of ``order`` is the pool that spatial splits
+    (alpha_area >= 0) may fill. Each range becomes a leaf when that is cheaper by the SAH and it
+    holds at most max_leaf references, else an inner node whose children are split by objects or
+    (SBVH) in space. Returns the number of nodes made."""
     if n <= 1:
         # The root is inner: one leaf (or none) in slot 0, copied to slot 1 below (one copy of its
         # objects: the pool holds n)
-        work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4], work[top, 5] = 0, 0, 0, n, 1, n
-        top += 1
+        _push(st, 0, 0, 0, n, 1, n)
     else:
-        work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4], work[top, 5] = -1, 0, 0, n, 0, pool
-        top += 1
-    while top > 0:
-        top -= 1
-        parent, slot, start, end, above, cap_end = work[top, 0], work[top, 1], work[top, 2], work[top, 3], \
-            work[top, 4], work[top, 5]
+        _push(st, -1, 0, 0, n, 0, st.order.shape[0])
+    while st.counts[TOP] > 0:
+        st.counts[TOP] -= 1
+        w = st.work[st.counts[TOP]]
+        parent, slot, start, end, above, cap_end = w["parent"], w["slot"], w["start"], w["end"], w["above"], \
+            w["cap_end"]
         count = end - start
-        _range_box(order, start, end, ref_lo, ref_hi, centroid, box)
+        range_box(st.order, start, end, st.ref_lo, st.ref_hi, st.centroid, st.box)
         if parent >= 0:
             for a in range(3):
-                child_lo[parent, slot, a] = box[a]
-                child_hi[parent, slot, a] = box[3 + a]
-        axis, k, cost, overlap = -1, 0, np.inf, np.inf
-        if count > 1:
-            axis, k, cost, overlap = _best_split(order, start, end, ref_lo, ref_hi, centroid, box, n_bins, bins,
-                                                 bin_n, right_cost, right_box)
-        s_axis, s_k = -1, 0
-        if spatial and count > 1 and cap_end > end and overlap > alpha_area:
-            s_axis, s_k, s_cost = best_spatial_split(order, start, end, ref_lo, ref_hi, ref_tri, vertices, faces,
-                                                     box, n_bins, s_bins, s_enter, s_leave, right_cost, s_right_n,
-                                                     piece)
-            if s_axis >= 0 and s_cost < cost:
-                cost = s_cost
-            else:
-                s_axis = -1
+                st.child_lo[parent, slot, a] = st.box[a]
+                st.child_hi[parent, slot, a] = st.box[3 + a]
+        axis, k, s_axis, s_k, cost = _choose_split(st, start, end, cap_end, n_bins, alpha_area)
         make_leaf = parent >= 0 and count <= max_leaf
         if make_leaf and count > 1 and (axis >= 0 or s_axis >= 0):
-            area = _half_area(box[3] - box[0], box[4] - box[1], box[5] - box[2])
+            b = st.box
+            area = half_area(b[3] - b[0], b[4] - b[1], b[5] - b[2])
             make_leaf = area <= 0.0 or ci * count <= ct + ci * cost / area
         if make_leaf:
-            child_ref[parent, slot] = ~((n_objects << LEAF_BITS) | count)
-            for j in range(start, end):
-                objects[n_objects] = ref_tri[order[j]]
-                n_objects += 1
-            depth = max(depth, above)
+            _make_leaf(st, parent, slot, start, end, above)
             continue
         node = 0
         if parent >= 0:
-            node = n_nodes
-            n_nodes += 1
-            child_ref[parent, slot] = node
+            node = st.counts[N_NODES]
+            st.counts[N_NODES] += 1
+            st.child_ref[parent, slot] = node
         n_left = -1
         if s_axis >= 0:
-            n_left, right, n_right, n_ids = spatial_partition(order, start, end, cap_end, s_axis, s_k, box, n_bins,
-                                                              ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices,
-                                                              faces, side, pieces)
+            n_left, right, n_right, st.counts[N_IDS] = spatial_partition(
+                st.order, start, end, cap_end, s_axis, s_k, st.box, n_bins, st.ref_lo, st.ref_hi, st.centroid,
+                st.ref_tri, st.counts[N_IDS], st.vertices, st.faces, st.side, st.pieces)
         if n_left < 0:
-            if axis >= 0:
-                mid = _partition(order, start, end, centroid, axis, k, box, n_bins)
-            else:
-                mid = start + count // 2       # coincident centroids: cut the list in the middle
-            n_left, right, n_right = mid - start, mid, end - mid
-            # Share the free slots by the counts
-            by = (cap_end - end) * n_left // count
-            if by > 0:
-                _shift_right(order, mid, end, by)
-                right += by
-        # Push the second child first, so the first is built (and laid out) next to its parent
-        work[top, 0], work[top, 1], work[top, 2], work[top, 3], work[top, 4] = node, 1, right, right + n_right, above + 1
-        work[top, 5] = cap_end
-        work[top + 1, 0], work[top + 1, 1], work[top + 1, 2] = node, 0, start
-        work[top + 1, 3], work[top + 1, 4], work[top + 1, 5] = start + n_left, above + 1, right
-        top += 2
+            n_left, right, n_right = _object_split(st, start, end, cap_end, axis, k, n_bins)
+        # The second child first, so the first is built (and laid out) next to its parent
+        _push(st, node, 1, right, right + n_right, above + 1, cap_end)
+        _push(st, node, 0, start, start + n_left, above + 1, right)
     if n <= 1:
-        child_lo[0, 1], child_hi[0, 1], child_ref[0, 1] = child_lo[0, 0], child_hi[0, 0], child_ref[0, 0]
-    return (child_lo[:n_nodes].copy(), child_hi[:n_nodes].copy(), child_ref[:n_nodes].copy(), depth,
-            objects[:n_objects].copy())
+        st.child_lo[0, 1], st.child_hi[0, 1], st.child_ref[0, 1] = st.child_lo[0, 0], st.child_hi[0, 0], \
+            st.child_ref[0, 0]
+    return st.counts[N_NODES]
 
 
 def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = BvhBuildParams()) -> Bvh:
@@ -364,10 +331,13 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, params: BvhBuildParams = 
         bounds = np.zeros((2, 3), np.float32)
     e = bounds[1].astype(np.float64) - bounds[0]
     alpha_area = params.spatial_alpha * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) if params.spatial else -1.0
-    child_lo, child_hi, child_ref, depth, objects = _build(
-        pool, n, ref_lo, ref_hi, centroid, ref_tri, n_faces, vertices, faces, params.bins, params.max_leaf_size,
-        float(params.cost_traversal), float(params.cost_intersect), float(alpha_area))
-    return Bvh(child_lo, child_hi, child_ref, objects, bounds, int(depth), params, time.perf_counter() - t0)
+    st = _new_state(pool, n, ref_lo, ref_hi, centroid, ref_tri, n_faces, vertices, faces, params.bins,
+                    alpha_area >= 0.0 and len(pool) > n)
+    m = _build(st, n, params.bins, params.max_leaf_size, float(params.cost_traversal), float(params.cost_intersect),
+               float(alpha_area))
+    k = int(st.counts[N_OBJECTS])
+    return Bvh(st.child_lo[:m].copy(), st.child_hi[:m].copy(), st.child_ref[:m].copy(), st.objects[:k].copy(),
+               bounds, int(st.counts[DEPTH]), params, time.perf_counter() - t0)
 
 
 def _save(path: Path, bvh: Bvh) -> None:

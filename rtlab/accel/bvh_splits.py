@@ -28,6 +28,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .bvh_sah import half_area6
+
 CLIP_PAD = 2.0 ** -46        # relative rounding bound of a float64 clip point (a few ulps of 2^-52)
 
 
@@ -89,14 +91,6 @@ def clip_triangle(vertices, faces, tri, axis, x0, x1, rlo, rhi, out):
 
 
 @njit(cache=True, inline="always")
-def _half_area6(b):
-    dx, dy, dz = b[3] - b[0], b[4] - b[1], b[5] - b[2]
-    if dx < 0.0 or dy < 0.0 or dz < 0.0:
-        return 0.0
-    return dx * dy + dy * dz + dz * dx
-
-
-@njit(cache=True, inline="always")
 def _grow(b, lo, hi):
     for m in range(3):
         b[m] = min(b[m], lo[m])
@@ -152,7 +146,7 @@ def best_spatial_split(order, start, end, ref_lo, ref_hi, ref_tri, vertices, fac
         for k in range(n_bins - 1, 0, -1):
             n_right += leave[k]
             _grow(acc, bins[k, 0:3], bins[k, 3:6])
-            right_cost[k] = _half_area6(acc) * n_right
+            right_cost[k] = half_area6(acc) * n_right
             right_n[k] = n_right
         acc[0:3] = np.inf
         acc[3:6] = -np.inf
@@ -162,7 +156,7 @@ def best_spatial_split(order, start, end, ref_lo, ref_hi, ref_tri, vertices, fac
             _grow(acc, bins[k - 1, 0:3], bins[k - 1, 3:6])
             if n_left == 0 or right_n[k] == 0:
                 continue
-            cost = _half_area6(acc) * n_left + right_cost[k]
+            cost = half_area6(acc) * n_left + right_cost[k]
             if cost < best_cost:
                 best_axis, best_k, best_cost = a, k, cost
     return best_axis, best_k, best_cost
@@ -220,14 +214,14 @@ def spatial_partition(order, start, end, cap_end, axis, k, box, n_bins, ref_lo, 
         if side[i] != 2:
             continue
         r = order[j]
-        a_l, a_r = _half_area6(b_left), _half_area6(b_right)
+        a_l, a_r = half_area6(b_left), half_area6(b_right)
         c_split = a_l * n_left + a_r * n_right
         grown[:] = b_left
         _grow(grown, ref_lo[r], ref_hi[r])
-        c_left = _half_area6(grown) * n_left + a_r * (n_right - 1)
+        c_left = half_area6(grown) * n_left + a_r * (n_right - 1)
         grown[:] = b_right
         _grow(grown, ref_lo[r], ref_hi[r])
-        c_right = a_l * (n_left - 1) + _half_area6(grown) * n_right
+        c_right = a_l * (n_left - 1) + half_area6(grown) * n_right
         if c_left < c_split and c_left <= c_right:
             side[i] = 3
             _grow(b_left, ref_lo[r], ref_hi[r])

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ..geometry import moller_trumbore_t, slab_interval
 from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, load_or_build_bvh
 
 # Instructions a CUDA thread spends per inner-node visit and per triangle test (rt_bvh.h, SASS
@@ -57,44 +58,6 @@ def sah_cost(bvh: Bvh, cost_traversal: float = 1.0, cost_intersect: float = 1.0)
     return float((cost_traversal * node_area.sum() + cost_intersect * (child_area * count).sum()) / root)
 
 
-@njit(cache=True, inline="always")
-def _clip(o, inv, lo, hi, t0, t1):
-    """Slab test of [lo, hi] on the segment [t0, t1]; (entry, exit)."""
-    for a in range(3):
-        n = (lo[a] - o[a]) * inv[a]
-        f = (hi[a] - o[a]) * inv[a]
-        if n > f:
-            n, f = f, n
-        if n == n:                         # NaN (origin on a plane of a zero component): keep
-            t0 = max(t0, n)
-        if f == f:
-            t1 = min(t1, f)
-    return t0, t1
-
-
-@njit(cache=True, inline="always")
-def _moller(o, d, v, f):
-    """t of the ray's hit on the triangle with corners v[f[0]], v[f[1]], v[f[2]] (edges
-    inclusive, two-sided), NaN when none."""
-    ax, ay, az = v[f[0], 0], v[f[0], 1], v[f[0], 2]
-    e1x, e1y, e1z = v[f[1], 0] - ax, v[f[1], 1] - ay, v[f[1], 2] - az
-    e2x, e2y, e2z = v[f[2], 0] - ax, v[f[2], 1] - ay, v[f[2], 2] - az
-    px, py, pz = d[1] * e2z - d[2] * e2y, d[2] * e2x - d[0] * e2z, d[0] * e2y - d[1] * e2x
-    det = e1x * px + e1y * py + e1z * pz
-    if det == 0.0:
-        return np.nan
-    inv_det = 1.0 / det
-    sx, sy, sz = o[0] - ax, o[1] - ay, o[2] - az
-    u = (sx * px + sy * py + sz * pz) * inv_det
-    if u < 0.0 or u > 1.0:
-        return np.nan
-    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
-    w = (d[0] * qx + d[1] * qy + d[2] * qz) * inv_det
-    if w < 0.0 or u + w > 1.0:
-        return np.nan
-    return (e2x * qx + e2y * qy + e2z * qz) * inv_det
-
-
 @njit(parallel=True, cache=True)
 def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, depth, vertices, faces,
                     origins, directions, tmin):
@@ -110,7 +73,7 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
             continue
         for a in range(3):
             inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
         if not t0 <= t1:
             continue
         stack = np.empty(depth + 1, np.int64)
@@ -121,8 +84,8 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
         while True:
             while ref >= 0:
                 n_nodes += 1
-                e0, x0 = _clip(o, inv, child_lo[ref, 0], child_hi[ref, 0], tmin, np.inf)
-                e1, x1 = _clip(o, inv, child_lo[ref, 1], child_hi[ref, 1], tmin, np.inf)
+                e0, x0 = slab_interval(o, inv, child_lo[ref, 0], child_hi[ref, 0], tmin, np.inf)
+                e1, x1 = slab_interval(o, inv, child_lo[ref, 1], child_hi[ref, 1], tmin, np.inf)
                 hit0 = e0 <= x0 and e0 <= best_t
                 hit1 = e1 <= x1 and e1 <= best_t
                 c0, c1 = child_ref[ref, 0], child_ref[ref, 1]
@@ -145,7 +108,8 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
             for j in range(first, first + count):
                 tri = objects[j]
                 n_tris += 1
-                t = _moller(o, d, vertices, faces[tri])
+                f = faces[tri]
+                t = moller_trumbore_t(o, d, vertices[f[0]], vertices[f[1]], vertices[f[2]])
                 if t > tmin and (t < best_t or (t == best_t and tri < best)):
                     best_t, best = t, tri
             if sp == 0:

@@ -24,6 +24,10 @@ def info():
                       "[green]ok[/]" if row["ok"] else f"[yellow]{escape(row['why'])}[/]")
     console.print(table)
     console.print(f"lab steps with kernels: {', '.join(lab_steps())}")
+    from ..labs import sandbox
+    why = sandbox.seccomp_available()
+    console.print("grader sandbox: " + escape(sandbox.describe(None if why else sandbox.sandbox_user())
+                                               if not why else f"unavailable: {why}"))
 
 
 def scenes():

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..cexpr import ExprError, evaluate
 from .ctokens import Token, directive_at, tokenize
 
 # --------------------------------------------------------------------------------------------------
@@ -28,102 +29,6 @@ from .ctokens import Token, directive_at, tokenize
 class Macro:
     params: list[str] | None     # None: object-like
     body: list[Token]
-
-
-class ExprError(ValueError):
-    pass
-
-
-def _int_literal(text: str) -> int:
-    t = text.rstrip("uUlL")
-    try:
-        if t.lower().startswith("0x"):
-            return int(t, 16)
-        if t.lower().startswith("0b"):
-            return int(t, 2)
-        if len(t) > 1 and t.startswith("0") and t.isdigit():
-            return int(t, 8)
-        return int(t)
-    except ValueError:
-        raise ExprError(f"not an integer: {text}") from None
-
-
-BINARY = [("||",), ("&&",), ("|",), ("^",), ("&",), ("==", "!="), ("<", "<=", ">", ">="), ("<<", ">>"),
-          ("+", "-"), ("*", "/", "%")]
-
-
-def evaluate(toks: list[str]) -> int:
-    """A C integer constant expression (after macro expansion and ``defined``): the operators of
-    #if, with C's truth values."""
-    pos = 0
-
-    def peek():
-        return toks[pos] if pos < len(toks) else None
-
-    def take():
-        nonlocal pos
-        pos += 1
-        return toks[pos - 1]
-
-    def primary():
-        t = take() if peek() is not None else None
-        if t is None:
-            raise ExprError("expression ends early")
-        if t == "(":
-            v = ternary()
-            if take() != ")":
-                raise ExprError("missing )")
-            return v
-        if t in ("!", "~", "-", "+"):
-            v = primary()
-            return {"!": int(not v), "~": ~v, "-": -v, "+": v}[t]
-        if t[0].isdigit():
-            return _int_literal(t)
-        if t.startswith("'"):
-            body = t[1:-1]
-            return ord(body[-1]) if body else 0
-        return 0   # an identifier left after expansion is 0
-
-    def binary(level):
-        if level == len(BINARY):
-            return primary()
-        v = binary(level + 1)
-        while peek() in BINARY[level]:
-            op = take()
-            w = binary(level + 1)
-            if op == "||":
-                v = int(bool(v) or bool(w))
-            elif op == "&&":
-                v = int(bool(v) and bool(w))
-            elif op in ("/", "%"):
-                if w == 0:
-                    raise ExprError("division by zero")
-                q = abs(v) // abs(w) * (1 if (v >= 0) == (w >= 0) else -1)
-                v = q if op == "/" else v - q * w
-            else:
-                v = {"|": lambda a, b: a | b, "^": lambda a, b: a ^ b, "&": lambda a, b: a & b,
-                     "==": lambda a, b: int(a == b), "!=": lambda a, b: int(a != b),
-                     "<": lambda a, b: int(a < b), "<=": lambda a, b: int(a <= b),
-                     ">": lambda a, b: int(a > b), ">=": lambda a, b: int(a >= b),
-                     "<<": lambda a, b: a << b, ">>": lambda a, b: a >> b,
-                     "+": lambda a, b: a + b, "-": lambda a, b: a - b, "*": lambda a, b: a * b}[op](v, w)
-        return v
-
-    def ternary():
-        c = binary(0)
-        if peek() == "?":
-            take()
-            a = ternary()
-            if take() != ":":
-                raise ExprError("missing : in ?:")
-            b = ternary()
-            return a if c else b
-        return c
-
-    v = ternary()
-    if pos != len(toks):
-        raise ExprError(f"unexpected {toks[pos]}")
-    return v
 
 
 @dataclass
@@ -188,7 +93,7 @@ class Preprocessor:
 
     def _condition(self, args: list[Token]) -> bool:
         try:
-            return bool(evaluate(self._expand_ids(args)))
+            return bool(evaluate(self._expand_ids(args), unknown=0))
         except (ExprError, RecursionError):
             return False
 

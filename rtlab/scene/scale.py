@@ -17,7 +17,7 @@ from ..kernel_constants import kernel_constant
 
 # An object whose spawn offset exceeds this share of its size is warned about
 SPAWN_OFFSET_FRACTION = 0.01
-MAX_OBJECT_WARNINGS = 3           # the worst objects named; the rest counted
+MAX_OBJECT_WARNINGS = 1           # the worst objects named; the rest counted, in the same message
 _F32_EPS = float(np.finfo(np.float32).eps)   # spacing of float32 at 1: 2^-23
 
 
@@ -56,8 +56,8 @@ def vertex_components(n_vertices: int, faces: np.ndarray) -> np.ndarray:
 
 
 def object_scale_warnings(vertices: np.ndarray, faces: np.ndarray, where: str) -> list[str]:
-    """Messages for the objects whose spawn offset exceeds SPAWN_OFFSET_FRACTION of their size (the
-    worst MAX_OBJECT_WARNINGS named with their numbers, the rest counted). Cheap for scenes without
+    """One message for the objects whose spawn offset exceeds SPAWN_OFFSET_FRACTION of their size (the
+    worst MAX_OBJECT_WARNINGS named with their numbers, the rest counted in it: a scene warns once). Cheap for scenes without
     such objects: components are only formed when some triangle is smaller than the largest offset
     allows."""
     v = np.asarray(vertices, np.float32).astype(np.float64)
@@ -108,8 +108,7 @@ def object_scale_warnings(vertices: np.ndarray, faces: np.ndarray, where: str) -
                 f"{100 * SPAWN_OFFSET_FRACTION:g} % is warned), so shadow and reflection rays near it can miss it")
         if n_zero[k]:
             text += f"; {n_zero[k]} of its {n_tris[k]} triangles have collapsed to zero area in float32"
-        out.append(text + ". Move the scene nearer the origin or scale it up")
+        out.append(text)
     if flagged.size > MAX_OBJECT_WARNINGS:
-        out.append(f"{where}: {flagged.size - MAX_OBJECT_WARNINGS} more objects are as small for their distance "
-                   f"from the origin")
-    return out
+        out.append(f"{flagged.size - MAX_OBJECT_WARNINGS} more objects are as small for their distance from the origin")
+    return ["; ".join(out) + ". Move the scene nearer the origin or scale it up"]

@@ -95,11 +95,11 @@ class VisitedLeaf:
 
 
 def clip_segment(o, inv_d, box, t0, t1) -> tuple[float, float]:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = (box[0] - o) * inv_d
-        b = (box[1] - o) * inv_d
-    lo, hi = np.fmin(a, b), np.fmax(a, b)          # fmin/fmax drop the NaN of 0 * inf
-    return max(t0, float(np.nanmax(lo))), min(t1, float(np.nanmin(hi)))
+    """The part of [t0, t1] inside ``box`` (rtlab.geometry.slab_interval)."""
+    from ..geometry import slab_interval
+    box = np.asarray(box, np.float64)
+    lo, hi = slab_interval(np.asarray(o, np.float64), np.asarray(inv_d, np.float64), box[0], box[1], float(t0), float(t1))
+    return float(lo), float(hi)
 
 
 def visited_leaves(tree, origin, direction, t_hit: float = np.inf, tmin: float = 0.0) -> list[VisitedLeaf]:

@@ -16,7 +16,8 @@ Messages say what was expected and what came, with the first pixel or ray that d
 from __future__ import annotations
 
 from .base import HARNESS_DIR, Kind, Outcome, Prepared, Produced, on_setup_compile, work_budget_problem
-from .hits import CameraRaysKind, CompileKind, IntersectLoopKind, RenderKind, TraceRaysKind, check_camera_rays
+from .camera import CameraRaysKind, check_camera_rays
+from .hits import CompileKind, IntersectLoopKind, RenderKind, TraceRaysKind
 from .memory import FetchSceneKind, NvccKind, PlacementKind
 from .speed import SpeedKind, speed_score, time_against_reference
 from .whitted import WhittedKind

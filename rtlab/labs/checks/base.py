@@ -3,7 +3,7 @@ between the grader and a test process, and how hits and images are compared with
 described in a message."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -225,3 +225,64 @@ def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camer
     o, d = camera_rays(camera)
     cmp_ = compare_hits(ref, got_tri, got_t, scene.vertices, faces, o, d)
     return describe_hit_errors(cmp_, ref, got_tri, got_t, tol, where_of)
+
+
+# --------------------------------------------------------------------------------------------------
+# what produce() shares: the work probe, a moved camera, fresh output buffers
+# --------------------------------------------------------------------------------------------------
+PROBE_RAYS = 256               # rays of a trace test whose reads are counted (the work budget)
+PROBE_IMAGE = (24, 24)         # the image of a render test whose reads are counted
+
+
+def work_probe(ds, launch, items: int, request: dict):
+    """The work budget's count: ``launch`` (a counting build on a few of the test's rays) with the
+    counters zeroed; the counts go to ``request["emit"]`` before the test's own launch (so the grader
+    has them even if that one never ends), or, with ``request["probe_only"]`` (the reference worker),
+    back as the whole result."""
+    ds.reserve_work_counters(items)
+    launch()
+    work = ds.take_work_counts()
+    if request.get("probe_only"):
+        return Produced({"work": work})
+    if request.get("emit"):
+        request["emit"]({"work": work})
+    return None
+
+
+def camera_scene(scene, request: dict):
+    """The scene seen through ``request["camera"]`` (a speed test's moved view), or as it is."""
+    cam = request.get("camera")
+    if cam is None:
+        return scene
+    from ...scene.model import Camera
+    return replace(scene, camera=Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov_deg"],
+                                        cam["width"], cam["height"]))
+
+
+def fresh_outputs(backend, request: dict):
+    """The backend, or (speed tests: ``request["fresh"]``) one whose new buffers start as random
+    bytes, so a kernel that skips its work leaves noise, never an earlier answer."""
+    if not request.get("fresh"):
+        return backend
+    if backend not in _fresh:
+        _fresh[backend] = FreshOutputs(backend, np.random.default_rng())
+    return _fresh[backend]
+
+
+_fresh: dict = {}
+
+
+class FreshOutputs:
+    """A backend whose every new buffer starts as random bytes."""
+
+    def __init__(self, backend, rng):
+        self._backend = backend
+        self._rng = rng
+
+    def __getattr__(self, name):
+        return getattr(self._backend, name)
+
+    def empty(self, nbytes):
+        buf = self._backend.empty(nbytes)
+        self._backend.fill(buf, self._rng.integers(0, 256, max(int(nbytes), 4), dtype=np.uint8))
+        return buf

@@ -41,7 +41,7 @@ class WhittedKind(Kind):
 
     def produce(self, state, request):
         from ...device.whitted import render_whitted
-        from .hits import camera_scene, fresh_outputs
+        from .base import camera_scene, fresh_outputs
         spec, inputs, backend, variant = state
         p = spec.params
         r = render_whitted(camera_scene(inputs["scene"], request), fresh_outputs(backend, request), variant,
