@@ -11,7 +11,7 @@ from numba import njit
 
 from .bvh4 import LEAF_BITS as BVH4_LEAF_BITS, NODE_ROWS as BVH4_NODE_ROWS, Bvh4
 from .bvh8 import NODE_ROWS, TRI_ROWS, Bvh8, decoded_boxes
-from .bvh_stats import _clip, _moller
+from ..geometry import moller_trumbore_t, slab_interval
 
 
 @njit(cache=True)
@@ -33,7 +33,7 @@ def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertic
             continue
         for a in range(3):
             inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
         if not t0 <= t1:
             continue
         octinv = 7 - ((4 if np.signbit(d[0]) else 0) + (2 if np.signbit(d[1]) else 0)
@@ -65,7 +65,7 @@ def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertic
                 if m == 0:
                     continue
                 n_boxes[i] += 1
-                e0, x0 = _clip(o, inv, box_lo[node, s], box_hi[node, s], tmin, np.inf)
+                e0, x0 = slab_interval(o, inv, box_lo[node, s], box_hi[node, s], tmin, np.inf)
                 if not (e0 <= x0 and e0 <= best_t):
                     continue
                 if (imask[node] >> s) & 1:
@@ -80,7 +80,8 @@ def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertic
                     k = (tb + tri_rows * b) // tri_rows
                     tri = tri_ids[k]
                     n_tris[i] += 1
-                    t = _moller(o, d, vertices, faces[tri])
+                    f = faces[tri]
+                    t = moller_trumbore_t(o, d, vertices[f[0]], vertices[f[1]], vertices[f[2]])
                     if t > tmin and (t < best_t or (t == best_t and tri < best)):
                         best_t, best = t, tri
             if not (mask & 0xFF000000):
@@ -128,7 +129,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
             continue
         for a in range(3):
             inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = _clip(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
         if not t0 <= t1:
             continue
         stack_ref = np.empty(3 * depth + 4, np.int64)
@@ -149,7 +150,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
                     if not lo[0] <= hi[0]:
                         continue
                     n_boxes[i] += 1
-                    e0, x0 = _clip(o, inv, lo, hi, tmin, np.inf)
+                    e0, x0 = slab_interval(o, inv, lo, hi, tmin, np.inf)
                     if e0 <= x0 and e0 <= best_t:
                         keys[k], kref[k] = e0, refs[node, s]
                         k += 1
@@ -167,7 +168,8 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
                 for j in range(count):
                     tri = tri_rows_ids[(first - tri_row0) // tri_rows + j]
                     n_tris[i] += 1
-                    t = _moller(o, d, vertices, faces[tri])
+                    f = faces[tri]
+                    t = moller_trumbore_t(o, d, vertices[f[0]], vertices[f[1]], vertices[f[2]])
                     if t > tmin and (t < best_t or (t == best_t and tri < best)):
                         best_t, best = t, tri
             ref = -(1 << 31)
