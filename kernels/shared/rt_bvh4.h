@@ -4,8 +4,10 @@
  * first and the others pushed with their entry distance, so that a popped child beyond the closest
  * hit so far is dropped (pop culling). Built by rtlab/accel/bvh4.py: the optimal collapse of
  * Ylitie, Karras & Laine 2017 (§3.1) to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
- * not 8: on the benchmark views a 4-wide node tests 0.8-0.9x the boxes the binary BVH tests, in
- * 0.4-0.5x the node visits (tests/test_bvh8.py's host counts), where an 8-wide one tests 1.2-1.3x.
+ * not 8: on the benchmark views (benchmarks/bench_wide_bvh_quality.py, host mirrors) this traversal
+ * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
+ * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box
+ * dearer by its decode; the GPU is issue-bound on these kernels, so boxes tested count.
  *
  * Node layout in node_data, 7 float4 = 112 B per node (sync with rtlab/accel/bvh4.py):
  *   [row + 0] = lo.x of children 0-3    [row + 1] = hi.x
