@@ -7,7 +7,7 @@
  * not 8: on the benchmark views (benchmarks/bench_wide_bvh_quality.py, host mirrors) this traversal
  * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
  * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box
- * dearer by its decode; the GPU is issue-bound on these kernels, so boxes tested count.
+ * dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes tested count.
  *
  * Node layout in node_data, 7 float4 = 112 B per node (sync with rtlab/accel/bvh4.py):
  *   [row + 0] = lo.x of children 0-3    [row + 1] = hi.x
