@@ -3,7 +3,7 @@
  * near and far planes picked per ray by row (no per-child select), the children hit entered nearest
  * first and the others pushed with their entry distance, so that a popped child beyond the closest
  * hit so far is dropped (pop culling). Built by rtlab/accel/bvh4.py: the optimal collapse of
- * Ylitie, Karras & Laine 2017 (§3.1) to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
+ * Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
  * not 8: on the benchmark views (benchmarks/bench_wide_bvh_quality.py, host mirrors) this traversal
  * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
  * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box

@@ -25,8 +25,10 @@
  *     covers, as in rt_bvh.h: no box the exact test keeps is culled (Ize 2013).
  *  2. A zero direction component gets the inverse +-2^64 (rt_bvh.h's bvh_inverse, -0 as negative):
  *     a ray lying in a slab is inside the quantised slab by the slack, so its interval there spans
- *     +-2^64 x slack, beyond any segment within 2^17 scene extents of the scene (the builder's
- *     smallest step is 2^-40 of the scene's extent). Coordinates up to 2^50 keep every product finite.
+ *     +-2^64 x slack, at least +-2^17 scene extents in t (the builder's smallest step is 2^-40 of the
+ *     scene's extent). That covers the whole segment of a ray starting within 2^16 extents of the
+ *     scene whose direction's largest component is >= 1 (normalised ones are), or within one extent
+ *     where it is >= 2^-16 (the least trace() passes on). Coordinates up to 2^50 keep products finite.
  *  3. Near and far planes by the direction's sign: the lo and hi bytes swap roles where inv < 0, so
  *     the entry and exit are a max and a min of three distances each (rt_bvh.h's int-bit span test).
  * Boxes are culled beyond t_cull of the closest hit (rt_intersect.h), the scalar BVH's pad, so ties at
@@ -43,7 +45,7 @@
 #define BVH8_NODE_BITS 0xFF000000u   /* a group's mask: node hits in bits 24-31 (slot ^ octinv), */
 #define BVH8_TRI_BITS 0x00FFFFFFu    /* triangle hits in bits 0-23; a node group keeps imask in 0-7 */
 
-/* A node group: the row of a node's first inner child and its pending hits (Ylitie et al. §4) */
+/* A node group: the row of a node's first inner child and its pending hits (Ylitie et al.'s node groups) */
 typedef struct {
     int base;
     unsigned int mask;

@@ -2,7 +2,7 @@
 
 Built as rtlab.accel.bvh8 builds its tree, with 4 slots a node: the binary SAH trees of
 rtlab.accel.bvh (plain and spatial-split, from their disk cache) refined to one triangle a leaf, then
-collapsed by Ylitie, Karras & Laine's dynamic programme (HPG 2017, §3.1) with leaves of up to
+collapsed by Ylitie, Karras & Laine's dynamic programme (HPG 2017) with leaves of up to
 ``leaf_max`` triangles; the spatial-split tree kept where its cost is SPLIT_MIN_GAIN lower. Child
 boxes stay float32 (exact), so the traversal's box test is rt_bvh.h's fused one; triangles in leaf
 order after the nodes, as in the BVH8 (the scene's own vertex floats, the id in the first row's w).

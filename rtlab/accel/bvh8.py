@@ -3,8 +3,8 @@ Laine, "Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide BVHs"
 
 Build, from the binary SAH trees of rtlab.accel.bvh (their disk cache, plain and spatial-split):
  1-3. rtlab.accel.bvh_collapse: binary leaves split down to one triangle, Ylitie et al.'s optimal
-    collapse (§3.1) to 8 children a node with leaves of at most 3 triangles (the 3-bit unary count
-    of the encoding), child slots ordered by octant (§3.2): the traversal visits slot s ^ octinv
+    collapse to 8 children a node with leaves of at most 3 triangles (the 3-bit unary count
+    of the encoding), child slots ordered by octant: the traversal visits slot s ^ octinv
     first, so a ray of octant s starts with the child furthest along -(signs of s).
  4. Child boxes quantised to 8 bits a plane, rounded outward with a slack (below), relative to a
     node origin p and a power-of-two step 2^e per axis.
@@ -31,9 +31,10 @@ step's distance, whatever the distance. Every quantised plane therefore lies SLA
 a step outside the exact child box: eight times that bound, so no box the exact test keeps is
 culled. The same slack covers a zero direction component, which the kernel gives the inverse
 +-2^64 (rt_bvh.h's bvh_inverse): a ray lying in a slab is then inside it by at least the slack and
-its interval there spans +-2^64 x slack, at least 2^17 scene extents since no step is below
-MIN_STEP_EXP (2^-40 of the scene's extent). The kernel's numbers stay finite for coordinates up to
-MAX_COORD (2^50).
+its interval there spans +-2^64 x slack, at least 2^17 scene extents in t since no step is below
+MIN_STEP_EXP (2^-40 of the scene's extent): the whole segment of a ray starting within 2^16 extents
+of the scene with a direction of length >= 1 (rt_bvh8.h, hazard 2). The kernel's numbers stay finite
+for coordinates up to MAX_COORD (2^50).
 """
 from __future__ import annotations
 

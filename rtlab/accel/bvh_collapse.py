@@ -6,10 +6,10 @@
     the binned SAH split of rtlab.accel.bvh is what a one-triangle-leaf build would choose anyway.
  2. Optimal collapse to ``width`` children a node by dynamic programming over the binary tree
     (Ylitie, Karras & Laine, "Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide
-    BVHs", HPG 2017, §3.1): C(n, i), the least SAH cost of representing the subtree of n by at most i
+    BVHs", HPG 2017): C(n, i), the least SAH cost of representing the subtree of n by at most i
     subtrees, from the choices leaf (at most ``leaf_max`` triangles), inner node (cost_node x area +
     its best distribution over ``width`` slots) and distribution of i slots among the two children.
- 3. Wide nodes with child slots ordered for the ray octant (Ylitie et al. §3.2): slot s holds the
+ 3. Wide nodes with child slots ordered for the ray octant (Ylitie et al.): slot s holds the
     child whose centre, from the node's centre, lies furthest along -(signs of octant s); greedy
     assignment of the cheapest (child, slot) pair first, as tinybvh does. A node's inner children
     get consecutive node indices and its leaves' triangles consecutive places, in slot order.
@@ -195,7 +195,7 @@ def _full_tree(child_lo, child_hi, child_ref, objects, tri_lo, tri_hi, leaf_bits
     return lo[:n].copy(), hi[:n].copy(), left[:n].copy(), right[:n].copy(), tri[:n].copy(), count[:n].copy()
 
 
-# ---- 2. optimal collapse (Ylitie et al. 2017, §3.1) --------------------------------------------------
+# ---- 2. optimal collapse (Ylitie et al. 2017) --------------------------------------------------
 @njit(cache=True)
 def _collapse_costs(lo, hi, left, right, count, cost_node, cost_prim, leaf_max, width):
     """cost[n, i] (i = 1..width): the least cost of the subtree of n as at most i subtrees;
@@ -288,7 +288,7 @@ def _leaf_tris(x, left, right, tri, out):
     return k
 
 
-# ---- 3. wide nodes, slots ordered by octant (Ylitie et al. §3.2) ---------------------------------------
+# ---- 3. wide nodes, slots ordered by octant (Ylitie et al.) ---------------------------------------
 @njit(cache=True)
 def _wide_nodes(lo, hi, left, right, tri, count, leaf, split, inner_k, width, max_tris):
     """The wide tree: per node its box, per slot (kind 0 empty, 1 inner, 2 leaf) the child box, the
