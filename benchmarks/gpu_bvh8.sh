@@ -5,13 +5,16 @@
 # the GPU tests of the wide BVHs; Whitted SPONZA (1024², shadows + 3 bounces, wavefront) per traversal.
 # Usage (device run, carry .device; stage: ../shared/device/stage.sh bunny.ply dragon.ply sponza kitchen conference):
 #   source .device/setup.sh && bash benchmarks/gpu_bvh8.sh [PART ...]
-# PARTs, in order (default: all; a 10-minute device call may not hold them all: run them as separate calls,
-# build first, the same machine keeps the accel cache while warm):
-#   build     build (or load) every scene's bvh, bvh8 and bvh4 and print their sizes, depths, costs
-#   tests     pytest of the wide BVHs on cuda and NVIDIA OpenCL (the gpu-marked ones included)
-#   primary   rtlab bench rays --kind primary, 1024² and 2048², every view
-#   diffuse   rtlab bench rays --kind diffuse, 1024², the peers' diffuse views
-#   whitted   rtlab render sponza --bounces 3 --materials paper --schedule wavefront, per traversal and backend
+# PARTs, in order (default: all). A device call runs 10 minutes at most: give each part its own call, build
+# first; a warm machine keeps the accel cache and the compiled kernels (each scene's stack depth is a
+# define, so every scene x traversal x backend compiles once, the first time it is timed):
+#   build        build (or load) every scene's bvh, bvh8 and bvh4 and print their sizes, depths, costs
+#   tests        pytest of the wide BVHs on cuda and NVIDIA OpenCL (the gpu-marked ones included)
+#   primary      rtlab bench rays --kind primary at each of SIZES (one bench call a size), every view
+#   primary1024, primary2048   the same at one size
+#   diffuse      rtlab bench rays --kind diffuse, 1024², the peers' diffuse views
+#   whitted      rtlab render sponza --bounces 3 --materials paper --schedule wavefront, per traversal and
+#                backend, and PSNR against the float64 reference at 256²
 # Prints one table: Mrays/s per traversal and its ratio to bvh, x best peer, and any mismatch against the
 # float64 reference. Environment: TRAVERSALS (bvh,bvh8,bvh4), BACKENDS (cuda,opencl), VIEWS, DIFFUSE_VIEWS,
 # SIZES (1024,2048), REPEATS (22), BLOCK (8x16), DEVICE (NVIDIA).
@@ -57,11 +60,15 @@ PY
     echo "pytest exit $?" >> "$OUT/pytest_wide.txt"
     grep -v "Warning\|return Scene\|^  " "$OUT/pytest_wide.txt" | tail -15
     ;;
-  primary|diffuse)
-    views=$VIEWS; sizes=$SIZES; [ $part = diffuse ] && views=$DIFFUSE_VIEWS && sizes=1024
-    timeout 590 python -m rtlab bench rays --kind $part --views "$views" --sizes "$sizes" --traversals "$TRAVERSALS" \
-      --isect watertight --backends "$BACKENDS" --device "$DEVICE" --block "$BLOCK" --repeats "$REPEATS" --no-render \
-      --md "$OUT/rays_$part.md" > "$OUT/rays_$part.log" 2>&1 || echo "bench rays $part: exit $?"
+  primary|primary[0-9]*|diffuse)
+    kind=${part%%[0-9]*}; views=$VIEWS; sizes=${part#primary}; [ -z "$sizes" ] && sizes=$SIZES
+    [ $kind = diffuse ] && views=$DIFFUSE_VIEWS && sizes=1024
+    rm -f "$OUT/rays_$part.md"
+    for size in ${sizes//,/ }; do
+      timeout 590 python -m rtlab bench rays --kind $kind --views "$views" --sizes "$size" --traversals "$TRAVERSALS" \
+        --isect watertight --backends "$BACKENDS" --device "$DEVICE" --block "$BLOCK" --repeats "$REPEATS" \
+        --no-render --md "$OUT/rays_$part.md" >> "$OUT/rays_$part.log" 2>&1 || echo "bench rays $kind $size: exit $?"
+    done
     python - "$OUT/rays_$part.md" <<'PY'
 import sys, pathlib
 rows, order = {}, []
@@ -102,6 +109,6 @@ PY
       echo "whitted sponza 256² cuda $t: ${psnr:-failed}"
     done | tee -a "$OUT/whitted.txt"
     ;;
-  *) echo "unknown part $part (build tests primary diffuse whitted)" ;;
+  *) echo "unknown part $part (build tests primary primary1024 primary2048 diffuse whitted)" ;;
   esac
 done
