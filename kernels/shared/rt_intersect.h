@@ -177,7 +177,15 @@ RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx),
  * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. Pure and branch-free, so a lane version is
  * the same expressions on double lanes. A ray parallel to the plane gives an inf or NaN t, which
  * closer_hit() rejects. */
-RT_FN float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
+#ifndef RT_REFINE_CALL            /* 1: plane_t_fp64 a call, not inlined (its doubles off the traversal's registers) */
+#define RT_REFINE_CALL 0
+#endif
+#if RT_REFINE_CALL
+RT_FN_NOINLINE
+#else
+RT_FN
+#endif
+float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
 {
     double ax = (double)v1.x - (double)v0.x, ay = (double)v1.y - (double)v0.y, az = (double)v1.z - (double)v0.z;
     double bx = (double)v2.x - (double)v0.x, by = (double)v2.y - (double)v0.y, bz = (double)v2.z - (double)v0.z;

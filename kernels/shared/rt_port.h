@@ -78,6 +78,7 @@
 /* ---- Language split ---- */
 #if defined(__CUDACC__)
 #define RT_FN static __device__ __forceinline__
+#define RT_FN_NOINLINE static __device__ __noinline__  /* a call: its registers are not the caller's */
 #define RT_KERNEL extern "C" __global__
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
 #define RT_CONST
@@ -119,6 +120,7 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #else /* OpenCL C */
 #define RT_FN static inline
+#define RT_FN_NOINLINE static __attribute__((noinline))
 #define RT_KERNEL __kernel
 #define RT_GLOBAL __global
 #if RT_CONST_MEM == RT_MEM_GLOBAL  /* frame, lights, materials passed as global buffers (§3.1.1 study) */
