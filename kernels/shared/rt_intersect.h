@@ -177,9 +177,8 @@ RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx),
  * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. Pure and branch-free, so a lane version is
  * the same expressions on double lanes. A ray parallel to the plane gives an inf or NaN t, which
  * closer_hit() rejects. */
-#ifndef RT_REFINE_CALL            /* 1: plane_t_fp64 a call, not inlined (its doubles off the traversal's registers) */
-#define RT_REFINE_CALL 0
-#endif
+/* RT_REFINE_CALL (rt_port.h's default by language): 1 makes plane_t_fp64 a call, its doubles off the
+ * traversal's registers */
 #if RT_REFINE_CALL
 RT_FN_NOINLINE
 #else
