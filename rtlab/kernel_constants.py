@@ -1,8 +1,8 @@
 """Constants the kernels and the host share, read from the kernels' own headers: one source.
 
 The variant codes (``RT_TRAVERSAL_BVH``...), the ray-tree sentinels (``RT_NO_RAY``), the layout
-constants of the host-built structures (``BVH_LEAF_BITS``, ``PBVH_TRI_ROWS``...) and the packet widths
-(``RT_LANES``, ``RT_PACKET_WIDTH``: the defaults the headers list) are ``#define``s in
+constants of the host-built structures (``BVH_LEAF_BITS``, ``WBVH_NODE_VECTORS``...) and the packet width
+(``RT_LANES``: the default the headers list) are ``#define``s in
 ``kernels/shared/*.h``. This module reads every object-like ``#define`` of :data:`HEADERS` whose value is
 a constant expression (numbers, other such names, arithmetic) once, on first use, so that a code
 changed in a header changes on the host too: no table to keep in sync by hand.
@@ -25,8 +25,8 @@ from .errors import RtlabError
 from .paths import REFERENCE_KERNEL_DIR
 
 # The headers whose #defines the host reads (kernels/shared/)
-HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh_packet.h", "rt_bvh_wide.h",
-           "rt_lanes.h", "rt_shade.h", "rt_whitted.h")
+HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh8.h", "rt_bvh4.h",
+           "rt_bvh_packet.h", "rt_bvh_wide.h", "rt_lanes.h", "rt_shade.h", "rt_whitted.h")
 
 _DIRECTIVE_RE = re.compile(r"^[ \t]*#[ \t]*(\w+)[ \t]*(.*?)[ \t]*$")
 _COMMENT_RE = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)

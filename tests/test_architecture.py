@@ -211,12 +211,15 @@ def test_variant_codes_are_the_headers(table, prefix):
 
 
 def test_layout_constants_are_the_headers():
-    from rtlab.accel import bvh, bvh_wide, kdtree, ropes, tri_data
+    from rtlab.accel import bvh, bvh4, bvh8, bvh_wide, kdtree, ropes, tri_data
     from rtlab.device import kernels, whitted
     from rtlab.reference import whitted as reference_whitted
     from rtlab.scene.materials import MIN_WEIGHT
     d = {k: int(v) for k, v in _header_defines().items()}
     assert (bvh.LEAF_BITS, bvh.NODE_FLOAT4S) == (d["BVH_LEAF_BITS"], d["BVH_NODE_STRIDE"])
+    assert (bvh8.NODE_ROWS, bvh8.TRI_ROWS, bvh4.NODE_ROWS, bvh4.LEAF_BITS) == (
+        d["BVH8_NODE_ROWS"], d["BVH8_TRI_ROWS"], d["BVH4_NODE_ROWS"], d["BVH4_LEAF_BITS"])
+    assert bvh8.NODE_DTYPE.itemsize == 16 * d["BVH8_NODE_ROWS"] == 80
     assert (bvh_wide.LEAF_BITS, bvh_wide.EMPTY) == (d["WBVH_LEAF_BITS"], d["WBVH_EMPTY"])
     assert (bvh_wide.NODE_VECTORS, bvh_wide.BLOCK_VECTORS) == (d["WBVH_NODE_VECTORS"], d["WBVH_BLOCK_VECTORS"])
     assert kernels.PACKET_LANES == d["RT_LANES"] == 8

@@ -30,8 +30,8 @@ from .conftest import require_scene_file
 # same float32 test, but each kernel may contract multiply-adds differently, which grazing hits
 # amplify; a missed cell shows as a far larger difference (another surface behind)
 T_REL_TOL = 1e-5
-VARIANTS = ["packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet", "bvh-wide"]
-BVH_VARIANTS = ("bvh", "bvh-packet", "bvh-wide")
+VARIANTS = ["packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet", "bvh8", "bvh4", "bvh-wide"]
+BVH_VARIANTS = ("bvh", "bvh-packet", "bvh8", "bvh4", "bvh-wide")
 SCENES = {"bunny": "bunny.ply", "sponza": "sponza/sponza.obj", "kitchen": "kitchen/kitchen.obj"}
 SIZE = 48
 

@@ -195,7 +195,14 @@ RT_FN float plane_t_fp64_n(float3 o, float3 d, float3 v0, double nx, double ny, 
     return (float)(num / den);
 }
 
-RT_FN float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
+/* RT_REFINE_CALL (rt_port.h's default by language): 1 makes plane_t_fp64 a call, its doubles off the
+ * traversal's registers */
+#if RT_REFINE_CALL
+RT_FN_NOINLINE
+#else
+RT_FN
+#endif
+float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
 {
     double nx, ny, nz;
     plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);

@@ -27,7 +27,9 @@
 #define RT_TRAVERSAL_ROPES 4       /* ropes, Popov et al. 2007 */
 #define RT_TRAVERSAL_BVH 5         /* binned-SAH BVH, Aila & Laine 2009 style (the paper's future work) */
 #define RT_TRAVERSAL_BVH_PACKET 6  /* the same BVH, RT_LANES rays a work-item in SIMD lanes: for CPUs */
-#define RT_TRAVERSAL_BVH_WIDE 7    /* the same BVH, RT_LANES children a node in SIMD lanes, one ray: for CPUs */
+#define RT_TRAVERSAL_BVH8 7        /* compressed 8-wide BVH, Ylitie, Karras & Laine 2017 (rt_bvh8.h) */
+#define RT_TRAVERSAL_BVH4 8        /* 4-wide BVH, float boxes, nearest child first (rt_bvh4.h) */
+#define RT_TRAVERSAL_BVH_WIDE 9    /* a BVH of RT_LANES children a node in SIMD lanes, one ray: for CPUs */
 #define RT_MEM_GLOBAL 0            /* tree and triangles through read-only global loads */
 #define RT_MEM_TEXTURE 1           /* ... through CUDA texture objects / OpenCL images (§3.1.1) */
 #define RT_MEM_CONSTANT 2          /* camera, lights, materials in constant memory (§3.1.1) */
@@ -77,6 +79,10 @@
 /* ---- Language split ---- */
 #if defined(__CUDACC__)
 #define RT_FN static __device__ __forceinline__
+#define RT_FN_NOINLINE static __device__ __noinline__  /* a call: its registers are not the caller's */
+#ifndef RT_REFINE_CALL             /* the watertight test's double plane distance as a call (rt_intersect.h): */
+#define RT_REFINE_CALL 1           /* 62 registers for the bvh trace kernel, not 72; +1-6 % on the H100 */
+#endif
 #define RT_KERNEL extern "C" __global__
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
 #define RT_CONST
@@ -98,8 +104,17 @@
 #define rt_barrier() __syncthreads()                          /* a block's threads meet */
 #define rt_shared_atomic_add(p, v) atomicAdd((p), (v))        /* int in block-wide memory */
 #define rt_atomic_inc(p) atomicAdd((p), 1)                    /* int in global memory; the old value */
+#define rt_clz(x) __clz((int)(x))                              /* leading zero bits of a 32-bit word */
+#define rt_popc(x) __popc((unsigned int)(x))                   /* set bits of a 32-bit word */
 #define rt_ctz(x) (__ffs(x) - 1)                               /* lowest set bit of x != 0 */
 typedef unsigned long long rt_u64;
+/* Byte k (0-3) of w, zero-extended: one byte permute (PRMT) where shift and mask would take two */
+RT_FN unsigned int rt_byte(unsigned int w, int k) { return __byte_perm(w, 0u, 0x4440u | (unsigned int)k); }
+/* Byte k (0-3) of w at bits 8-15 of hi, whose bits 0-15 are zero: one byte permute (PRMT) */
+RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
+{
+    return __byte_perm(w, hi, 0x7604u | ((unsigned int)k << 4));
+}
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
 {
@@ -110,6 +125,10 @@ RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z
 RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #else /* OpenCL C */
 #define RT_FN static inline
+#define RT_FN_NOINLINE static __attribute__((noinline))
+#ifndef RT_REFINE_CALL             /* inlined: PoCL vectorises work-items through it; NVIDIA's OpenCL */
+#define RT_REFINE_CALL 0           /* chooses its registers itself */
+#endif
 #define RT_KERNEL __kernel
 #define RT_GLOBAL __global
 #if RT_CONST_MEM == RT_MEM_GLOBAL  /* frame, lights, materials passed as global buffers (§3.1.1 study) */
@@ -135,8 +154,15 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_barrier() barrier(CLK_LOCAL_MEM_FENCE)
 #define rt_shared_atomic_add(p, v) atomic_add((p), (v))
 #define rt_atomic_inc(p) atomic_inc(p)
+#define rt_clz(x) ((int)clz((unsigned int)(x)))
+#define rt_popc(x) ((int)popcount((unsigned int)(x)))
 #define rt_ctz(x) (31 - clz((x) & -(x)))                       /* lowest set bit of x != 0 (ctz is OpenCL C 2.0) */
 typedef ulong rt_u64;
+RT_FN unsigned int rt_byte(unsigned int w, int k) { return (w >> (8 * k)) & 0xFFu; }
+RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
+{
+    return (((w >> (8 * k)) & 0xFFu) << 8) | hi;
+}
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {
     return (unsigned int)(get_global_id(0) + get_global_size(0) * get_global_id(1));

@@ -23,6 +23,12 @@
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH
 #include "rt_bvh.h"
 #define RT_TRAVERSE_RAY traverse_bvh
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH8
+#include "rt_bvh8.h"
+#define RT_TRAVERSE_RAY traverse_bvh8
+#elif RT_TRAVERSAL == RT_TRAVERSAL_BVH4
+#include "rt_bvh4.h"
+#define RT_TRAVERSE_RAY traverse_bvh4
 #elif RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
 /* trace_rays and render_primary take RT_LANES rays a work-item (rt_primary.h); single rays (shadows,
  * reflections) go through the wide traversal of the same tree */

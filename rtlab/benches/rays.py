@@ -29,14 +29,18 @@ DIFFUSE_OFFSET = 1e-4        # x the scene's bounding-box diagonal (README)
 CHECK_RAYS = 65_536          # rays of a batch checked against the float64 reference
 
 
+PEERS = ("warp", "optix", "tinybvh")
+
+
 def peer_figures() -> dict[tuple[str, str, int], dict]:
-    """(view, kind, size) -> {"warp": Mrays/s, "optix": Mrays/s, "best": ..., "best_name": ...}."""
+    """(view, kind, size) -> {"warp": Mrays/s, "optix": ..., "tinybvh": ..., "best": ..., "best_name": ...}."""
     data = json.loads(PEER_FIGURES_FILE.read_text())
     out = {}
     for r in data["rows"]:
-        best_name = max(("warp", "optix"), key=lambda k: r[k])
-        out[(r["view"], r["kind"], int(r["size"]))] = {"warp": r["warp"], "optix": r["optix"],
-                                                      "best": r[best_name], "best_name": best_name}
+        names = [k for k in PEERS if k in r]
+        best_name = max(names, key=lambda k: r[k])
+        out[(r["view"], r["kind"], int(r["size"]))] = {**{k: r[k] for k in names}, "best": r[best_name],
+                                                      "best_name": best_name}
     return out
 
 

@@ -24,9 +24,10 @@ def _codes(prefix: str, names) -> dict[str, int]:
 # BVH (rt_bvh_wide.h, PACKET_LANES children a node): "bvh-wide" walks it one ray a work-item, a
 # node's children tested in SIMD lanes; "bvh-packet" walks it with packets of PACKET_LANES rays a
 # work-item in SIMD lanes (rt_bvh_packet.h) where a packet's rays are coherent, and ray by ray as
-# "bvh-wide" where they are not.
+# "bvh-wide" where they are not. "bvh8" is the compressed 8-wide BVH (rt_bvh8.h, Ylitie et al. 2017)
+# and "bvh4" a 4-wide one with float boxes (rt_bvh4.h), both collapsed from the same binary trees.
 TRAVERSALS = _codes("RT_TRAVERSAL_", ("stack", "packet", "restart", "shortstack", "ropes", "bvh", "bvh-packet",
-                                      "bvh-wide"))
+                                      "bvh8", "bvh4", "bvh-wide"))
 INTERSECTIONS = _codes("RT_ISECT_", ("moller", "wald", "plucker", "watertight"))
 NODE_MEMORY = _codes("RT_MEM_", ("global", "texture"))
 # Memory placement (§3.1.1, lab step 01): camera/lights/materials; the ray; rays to threads (§4.1)

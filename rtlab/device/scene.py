@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..accel.bvh import load_or_build_bvh
+from ..accel.bvh4 import load_or_build_bvh4
+from ..accel.bvh8 import load_or_build_bvh8
 from ..accel.bvh_stats import traversal_bvh
 from ..accel.bvh_wide import cpu_bvh, wide_node_data
 from ..accel.kdtree import KdBuildParams, KdTree
@@ -70,10 +72,25 @@ def cpu_bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, rows, bvh.objects, bvh.bounds, stack)
 
 
+def bvh8_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's compressed 8-wide BVH (rt_bvh8.h): nodes and leaf-ordered triangles in node_data,
+    no object list; the kd-tree is not used."""
+    b, _ = load_or_build_bvh8(scene.vertices, scene.faces)
+    return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, b.depth + 1)
+
+
+def bvh4_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+    """The scene's 4-wide BVH (rt_bvh4.h): nodes and leaf-ordered triangles in node_data; a node pushes
+    at most 3 children, so the stack holds 3 x depth + 1."""
+    b, _ = load_or_build_bvh4(scene.vertices, scene.faces)
+    return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
+
+
 # family -> builder(scene, kd_tree) -> AccelArrays; a traversal's family is its name but where
 # ACCEL_FAMILIES names another (traversals that read one structure share its upload); every
 # traversal not listed reads the kd-tree as built (kd_accel)
-ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "cpu-bvh": cpu_bvh_accel}
+ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "cpu-bvh": cpu_bvh_accel, "bvh8": bvh8_accel,
+                  "bvh4": bvh4_accel}
 ACCEL_FAMILIES = {"bvh-packet": "cpu-bvh", "bvh-wide": "cpu-bvh"}
 KD_FAMILIES = ("kd", "ropes")                 # the families built on the kd-tree
 

@@ -1,0 +1,178 @@
+/* rt_bvh4.h - 4-wide BVH traversal with float child boxes: the children's planes stored as one float4
+ * per plane (lo.x of the four children, hi.x, ...: a structure of arrays, as in Embree's BVH4), the
+ * near and far planes picked per ray by row (no per-child select), the children hit entered nearest
+ * first and the others pushed with their entry distance, so that a popped child beyond the closest
+ * hit so far is dropped (pop culling). Built by rtlab/accel/bvh4.py: the optimal collapse of
+ * Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
+ * not 8: on the benchmark views (benchmarks/bench_wide_bvh_quality.py, host mirrors) this traversal
+ * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
+ * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box
+ * dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes tested count.
+ *
+ * Node layout in node_data, 7 float4 = 112 B per node (sync with rtlab/accel/bvh4.py):
+ *   [row + 0] = lo.x of children 0-3    [row + 1] = hi.x
+ *   [row + 2] = lo.y                    [row + 3] = hi.y
+ *   [row + 4] = lo.z                    [row + 5] = hi.z
+ *   [row + 6] = child refs (int bits): >= 0 the row of an inner node; a leaf is
+ *               ~((first triangle row << BVH4_LEAF_BITS) | count)
+ * An empty slot has the box (+inf, -inf), which no ray enters. Triangles as in rt_bvh8.h: 3 rows each,
+ * (v0.xyz, triangle id bits), (v1.xyz, 0), (v2.xyz, 0), a leaf's contiguous. The root is row 0.
+ * RT_STACK_SIZE is 3 x depth + 1 (rtlab.device.scene): a node pushes at most 3 children.
+ *
+ * Box test: rt_bvh.h's fused form (one fma a plane, o inv moved outward by its rounding bound, zero
+ * direction components as +-2^64 with the ray's length as pad), which keeps every box the exact test
+ * keeps at any distance from the origin for coordinates up to 1e18 (the builder checks); with
+ * RT_CONSERVATIVE the exit scaled by 1 + RT_T_PAD; boxes and pending children culled beyond t_cull of
+ * the closest hit, the scalar BVH's pad, so ties at equal t reach the lower triangle id. */
+#ifndef RT_BVH4_H
+#define RT_BVH4_H
+#include "rt_bvh8.h"
+
+#define BVH4_NODE_ROWS 7             /* float4 rows a node (sync with rtlab/accel/bvh4.py) */
+#define BVH4_LEAF_BITS 4             /* at most 15 triangles a leaf */
+#define BVH4_NONE (-2147483647 - 1)  /* no child: not a leaf ref (its row would be 2^27 - 1) */
+#define BVH4_MISS 0x7FFFFFFF         /* the sort key of a child not hit */
+
+/* A pending child: its ref and its box's entry distance (rounded down to the sort key's bits) */
+typedef struct {
+    int ref;
+    float t;
+} Bvh4Entry;
+
+typedef struct {
+    float3 inv;              /* 1/d, or +-2^64 where |d| <= RT_BVH_MIN_DIR (bvh_inverse) */
+    float3 o_near, o_far;    /* o inv moved up (near planes) and down (far planes) by its rounding bound */
+    float tmin;              /* +0 for -0 (bvh_span_enter compares bit patterns) */
+    int near_x, near_y, near_z;   /* row of the near plane's float4 in a node: lo, or hi where inv < 0 */
+} Bvh4Ray;
+
+/* The per-ray constants for a ray whose segment in the scene box ends at t_exit (rt_bvh.h's bvh_ray). */
+RT_FN Bvh4Ray bvh4_ray(const Ray *ray, float t_exit)
+{
+    Bvh4Ray r;
+    float t_pad = 2.0f * t_exit;
+    r.inv = f3(bvh_inverse(ray->d.x), bvh_inverse(ray->d.y), bvh_inverse(ray->d.z));
+    float3 oi = hadamard3(ray->o, r.inv);
+    float3 pad = f3(bvh_origin_pad(ray->d.x, oi.x, t_pad), bvh_origin_pad(ray->d.y, oi.y, t_pad),
+                    bvh_origin_pad(ray->d.z, oi.z, t_pad));
+    r.o_near = add3(oi, pad);
+    r.o_far = sub3(oi, pad);
+    r.near_x = r.inv.x < 0.0f ? 1 : 0;
+    r.near_y = r.inv.y < 0.0f ? 3 : 2;
+    r.near_z = r.inv.z < 0.0f ? 5 : 4;
+    r.tmin = ray->tmin > 0.0f ? ray->tmin : 0.0f;
+    return r;
+}
+
+/* Sort key of a child: its entry distance's bits (>= +0, so ordered as ints) with the slot in the two
+ * low bits, or BVH4_MISS */
+RT_FN int bvh4_key(float tx0, float ty0, float tz0, float tx1, float ty1, float tz1, const Bvh4Ray *r, float t_cut,
+                   int slot)
+{
+    float t0 = bvh_span_enter(tx0, ty0, tz0, r->tmin);
+    float t1 = bvh_span_exit(tx1, ty1, tz1, t_cut);
+#if RT_CONSERVATIVE
+    t1 *= RT_BVH_EXIT_SCALE;
+#endif
+    return t0 <= t1 ? ((rt_as_int(t0) & ~3) | slot) : BVH4_MISS;
+}
+
+/* Child ref of slot k (0-3) of a node's ref row, by selects on k's two bits (a run-time index into a
+ * register vector would go through local memory, §3.1.1; nested ?: became branches) */
+RT_FN int bvh4_child(float4 refs, int k)
+{
+    float lo = (k & 1) ? refs.y : refs.x;
+    float hi = (k & 1) ? refs.w : refs.z;
+    return rt_as_int((k & 2) ? hi : lo);
+}
+
+RT_FN void bvh4_order(int *a, int *b)
+{
+    int lo = rt_imin(*a, *b), hi = rt_imax(*a, *b);
+    *a = lo;
+    *b = hi;
+}
+
+/* Test the four children of the node at row `row`; push all hit but the nearest (farthest first, with
+ * their entry distances) and return the nearest, or BVH4_NONE when none is hit. */
+RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bvh4Entry *stack, int *sp)
+{
+    float4 nx = load_node_data(node_data, row + r->near_x), fx = load_node_data(node_data, row + (r->near_x ^ 1));
+    float4 ny = load_node_data(node_data, row + r->near_y), fy = load_node_data(node_data, row + (r->near_y ^ 1));
+    float4 nz = load_node_data(node_data, row + r->near_z), fz = load_node_data(node_data, row + (r->near_z ^ 1));
+    float3 a = r->inv, on = r->o_near, of = r->o_far;
+    int k0 = bvh4_key(rt_fma(nx.x, a.x, -on.x), rt_fma(ny.x, a.y, -on.y), rt_fma(nz.x, a.z, -on.z),
+                      rt_fma(fx.x, a.x, -of.x), rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), r, t_cut, 0);
+    int k1 = bvh4_key(rt_fma(nx.y, a.x, -on.x), rt_fma(ny.y, a.y, -on.y), rt_fma(nz.y, a.z, -on.z),
+                      rt_fma(fx.y, a.x, -of.x), rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), r, t_cut, 1);
+    int k2 = bvh4_key(rt_fma(nx.z, a.x, -on.x), rt_fma(ny.z, a.y, -on.y), rt_fma(nz.z, a.z, -on.z),
+                      rt_fma(fx.z, a.x, -of.x), rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), r, t_cut, 2);
+    int k3 = bvh4_key(rt_fma(nx.w, a.x, -on.x), rt_fma(ny.w, a.y, -on.y), rt_fma(nz.w, a.z, -on.z),
+                      rt_fma(fx.w, a.x, -of.x), rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), r, t_cut, 3);
+    /* Sorting network of four keys: nearest in k0, misses last */
+    bvh4_order(&k0, &k1);
+    bvh4_order(&k2, &k3);
+    bvh4_order(&k0, &k2);
+    bvh4_order(&k1, &k3);
+    bvh4_order(&k1, &k2);
+    if (k0 == BVH4_MISS)
+        return BVH4_NONE;
+    float4 refs = load_node_data(node_data, row + 6);
+    /* Push the others farthest first, without branches: a miss is written and then overwritten
+     * (misses sort last, so the entries pushed are exactly the hits; the stack has 3 spare entries) */
+    int n = *sp;
+    stack[n].ref = bvh4_child(refs, k3 & 3);
+    stack[n].t = rt_as_float(k3 & ~3);
+    n += k3 != BVH4_MISS;
+    stack[n].ref = bvh4_child(refs, k2 & 3);
+    stack[n].t = rt_as_float(k2 & ~3);
+    n += k2 != BVH4_MISS;
+    stack[n].ref = bvh4_child(refs, k1 & 3);
+    stack[n].t = rt_as_float(k1 & ~3);
+    n += k1 != BVH4_MISS;
+    *sp = n;
+    return bvh4_child(refs, k0 & 3);
+}
+
+/* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
+RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
+                         int any_hit)
+{
+    float t_enter, t_exit;
+    if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
+        return;
+    Bvh4Ray r = bvh4_ray(ray, t_exit);
+    Bvh4Entry stack[RT_STACK_SIZE + 3];
+    int sp = 0;
+    int ref = 0;
+    float t_cut = t_cull(hit->t);      /* changes only where a leaf finds a hit */
+    for (;;) {
+        /* Inner nodes: enter the nearest child hit */
+        while (ref >= 0)
+            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp);
+        /* A leaf: its triangles' rows */
+        if (ref != BVH4_NONE) {
+            int bits = ~ref;
+            int row = bits >> BVH4_LEAF_BITS;
+            int count = bits & ((1 << BVH4_LEAF_BITS) - 1);
+            for (int i = 0; i < count; ++i) {
+                if (intersect_bvh8_tri(RT_SCENE_ARGS, row + BVH8_TRI_ROWS * i, ray, hit) && any_hit)
+                    return;
+            }
+            t_cut = t_cull(hit->t);
+        }
+        /* The most recent pending child that may still hold a hit as close as the closest so far */
+        ref = BVH4_NONE;
+        while (sp > 0) {
+            --sp;
+            if (stack[sp].t <= t_cut) {
+                ref = stack[sp].ref;
+                break;
+            }
+        }
+        if (ref == BVH4_NONE)
+            return;
+    }
+}
+
+#endif /* RT_BVH4_H */
