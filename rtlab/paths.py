@@ -51,6 +51,19 @@ def kernel_dir() -> Path:
     return _kernel_dir
 
 
+# What a stubbed solution region holds (rtlab.labs.regions writes it): a student tree's unwritten functions
+STUB_MARK = "TODO (lab "
+
+
+def tree_has_stubs(relpath: str) -> bool:
+    """Whether file ``relpath`` of the kernel tree in use (e.g. "shared/rt_intersect_lanes.h") holds a
+    stubbed solution region: a student release or a grading tree."""
+    try:
+        return STUB_MARK in (_kernel_dir / relpath).read_text(errors="replace")
+    except OSError:
+        return False
+
+
 def use_kernel_dir(root) -> Path:
     """Compile from the kernel tree at ``root`` from now on in this process (``rtlab render --kernels
     DIR``, the grader's reference); returns the tree used before."""

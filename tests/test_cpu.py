@@ -301,3 +301,20 @@ def test_bench_cpu_against_embree(backend):
     assert row.rtlab_error["rays"] == batch.check_index.size
     md = cpu_markdown([row], "rtlab bench cpu", 2)
     assert "| default |" in md and "Embree" in md
+
+
+def test_cpu_default_in_a_student_tree_is_the_scalar_test(tmp_path):
+    """A student tree stubs the watertight test's lane form (it would show lab 02's solution): there the
+    CPU default is the scalar test, which calls the student's own intersect_ray_tri_watertight."""
+    from rtlab.backends import get_backend
+    from rtlab.device.tracing import DEFAULT_VARIANT, SCALAR_CPU_VARIANT, default_variant
+    from rtlab.labs.trees import copy_stubbed
+    from rtlab.paths import REFERENCE_KERNEL_DIR, use_kernel_dir
+    backend = get_backend("opencl", "cpu")
+    assert default_variant(backend) == DEFAULT_VARIANT
+    copy_stubbed(REFERENCE_KERNEL_DIR, tmp_path / "kernels", None)
+    before = use_kernel_dir(tmp_path / "kernels")
+    try:
+        assert default_variant(backend) == SCALAR_CPU_VARIANT
+    finally:
+        use_kernel_dir(before)

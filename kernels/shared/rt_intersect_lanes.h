@@ -8,6 +8,10 @@
  * intersect_ray_tri_moller or intersect_ray_tri_watertight decides it: every traversal returns the
  * same triangle and t (tests/test_cpu.py checks against the scalar traversals). What depends on the
  * closest hit so far (closer_hit's tie rule) stays with the caller.
+ *
+ * The watertight test's lane form would show lab 02's solution, so its bodies are the course's
+ * regions (rtlab.labs.trees.COURSE_REGIONS): stubbed in every student tree, where the library's CPU
+ * default falls back to the scalar test (rtlab.device.tracing.default_variant).
  */
 #ifndef RT_INTERSECT_LANES_H
 #define RT_INTERSECT_LANES_H
@@ -47,6 +51,8 @@ typedef struct {
 
 RT_FN WatertightAxes watertight_axes(float3 d)
 {
+    /* BEGIN SOLUTION */
+    /* STUB: WatertightAxes w = {0, 1, 2, 0.0f, 0.0f, 1.0f}; return w; */
     WatertightAxes w;
     float ax = rt_abs(d.x), ay = rt_abs(d.y), az = rt_abs(d.z);
     w.kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
@@ -61,6 +67,7 @@ RT_FN WatertightAxes watertight_axes(float3 d)
     w.sx = get3(d, w.kx) * w.sz;
     w.sy = get3(d, w.ky) * w.sz;
     return w;
+    /* END SOLUTION */
 }
 
 /* Woop's edge functions on the lanes: a, b, c the triangle's vertices minus the ray origin, in the
@@ -71,6 +78,8 @@ RT_FN WatertightAxes watertight_axes(float3 d)
 RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef by, lanef bz, lanef cx, lanef cy,
                                    lanef cz, lanef sx, lanef sy, lanef *u, lanef *v, lanef *w, lanef *det)
 {
+    /* BEGIN SOLUTION */
+    /* STUB: *u = *v = *w = *det = lf_splat(0.0f); return li_splat(0); */
     lanef ax2 = lf_sub_mul(ax, sx, az), ay2 = lf_sub_mul(ay, sy, az);
     lanef bx2 = lf_sub_mul(bx, sx, bz), by2 = lf_sub_mul(by, sy, bz);
     lanef cx2 = lf_sub_mul(cx, sx, cz), cy2 = lf_sub_mul(cy, sy, cz);
@@ -93,6 +102,7 @@ RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef
     *w = e2;
     *det = lf_add(lf_add(e0, e1), e2);
     return li_andnot(li_andnot(li_splat(-1), li_and(negative, positive)), lf_eq(*det, zero));
+    /* END SOLUTION */
 }
 
 #endif /* RT_INTERSECT_LANES_H */

@@ -42,10 +42,19 @@ DEFAULT_VARIANT = Variant(traversal="bvh-packet", intersection="watertight")
 GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
 
 
+# Where the kernel tree in use has no lane form of the watertight test (a student release stubs it: it
+# would show lab 02's solution), the CPU default is the scalar test on the kd stack traversal.
+SCALAR_CPU_VARIANT = Variant(traversal="stack", intersection="watertight")
+
+
 def default_variant(backend) -> Variant:
     """The variant the library runs on ``backend`` when none is named: GPU_DEFAULT_VARIANT on a GPU,
-    DEFAULT_VARIANT (the CPU's packet traversal) on any other device."""
-    return GPU_DEFAULT_VARIANT if backend.is_gpu() else DEFAULT_VARIANT
+    DEFAULT_VARIANT (the CPU's packet traversal) on any other device, SCALAR_CPU_VARIANT there in a
+    student tree."""
+    from ..paths import tree_has_stubs
+    if backend.is_gpu():
+        return GPU_DEFAULT_VARIANT
+    return SCALAR_CPU_VARIANT if tree_has_stubs("shared/rt_intersect_lanes.h") else DEFAULT_VARIANT
 
 
 @dataclass

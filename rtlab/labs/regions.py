@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass
 
 from ..errors import LabError
+from ..paths import STUB_MARK as TODO_MARK   # one spelling: rtlab.paths reads it too
 
 
 BEGIN_RE = re.compile(r"^([ \t]*)/\*\s*BEGIN SOLUTION\s*\*/[ \t]*$", re.M)
@@ -21,7 +22,6 @@ STUB_RE = re.compile(r"^[ \t]*/\*\s*STUB:\s*(.*?)\s*\*/[ \t]*$")
 SIGNATURE_RE = re.compile(
     r"^(?:RT_FN|RT_KERNEL|__kernel|extern\s+\"C\"\s+__global__|__global__|static\s+inline|static)\s+"
     r"(?P<ret>[A-Za-z_][\w \t\*]*?)\s*\b(?P<name>[A-Za-z_]\w*)\s*\(", re.M)
-TODO_MARK = "TODO (lab "
 
 # What a stubbed function returns: a miss, zero, an empty ray (tmax = 0: every pixel misses).
 STUBS = {
