@@ -283,9 +283,26 @@ def test_a_variant_compiles_as_its_own_name(backend, tmp_path, traversal, isect,
 
 # ---- the kernels' sources ----------------------------------------------------------------------
 
-def _kernel_names(path: Path) -> list[str]:
-    return sorted(re.findall(r"^(?:RT_KERNEL|__kernel|extern \"C\" __global__)\s+void\s+(\w+)\s*\(",
-                             path.read_text(), re.M))
+KERNEL_DEFINITION = re.compile(r"^(?:RT_KERNEL|__kernel|extern \"C\" __global__)\s+void\s+(\w+)\s*\(", re.M)
+QUOTED_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
+
+
+def _defined_kernels(path: Path) -> list[str]:
+    """Entry kernels whose definition is in this file itself."""
+    return KERNEL_DEFINITION.findall(path.read_text())
+
+
+def _kernel_names(path: Path, seen: set | None = None) -> list[str]:
+    """Entry kernels a program holds: its own and those of the headers it includes (found beside it,
+    then in kernels/shared, as the compilers search)."""
+    seen = set() if seen is None else seen
+    names = _defined_kernels(path)
+    for name in QUOTED_INCLUDE.findall(path.read_text()):
+        header = next((d / name for d in (path.parent, SHARED) if (d / name).is_file()), None)
+        if header is not None and header not in seen:
+            seen.add(header)
+            names += _kernel_names(header, seen)
+    return sorted(names)
 
 
 def _pairs():
@@ -301,12 +318,47 @@ def test_each_pair_declares_the_same_kernels(cu, cl):
     assert _kernel_names(cu) == _kernel_names(cl), f"{cu.name} and {cl.name} declare different kernels"
 
 
+def test_each_entry_kernel_is_written_once():
+    """Entry kernels are written once for both languages (kernels/shared/rt_entry_*.h, the grader's
+    harness headers): a .cu or .cl file defines none, and no kernel name is defined twice. A device
+    function a language file defines is a lab's student region (01_memory.cu's place_ray_shared)."""
+    from rtlab.labs.trees import region_owners
+    headers = sorted(SHARED.glob("*.h")) + sorted((PACKAGE_DIR / "labs" / "harness").glob("*.h"))
+    programs = [p for pair in _pairs() for p in pair]
+    in_programs = {p.name: _defined_kernels(p) for p in programs if _defined_kernels(p)}
+    assert not in_programs, f"entry kernels defined in a language's own file (write them in kernels/shared): {in_programs}"
+    where: dict[str, list[str]] = {}
+    for h in headers:
+        for name in _defined_kernels(h):
+            where.setdefault(name, []).append(h.name)
+    twice = {k: v for k, v in where.items() if len(v) > 1}
+    assert not twice, f"entry kernels defined more than once: {twice}"
+    held = {name for p in programs for name in _kernel_names(p)}
+    assert held <= set(where) and held, f"kernels of no shared header: {held - set(where)}"
+    regions = {(path, f) for path, f in region_owners()}
+    loose = [f"{p.name}:{name}" for p in programs for name, _ in _functions(p.read_text())
+             if (f"kernels/{p.parent.name}/{p.name}", name) not in regions]
+    assert not loose, f"device functions in a language's own file (write them once in kernels/shared): {loose}"
+
+
 def test_only_the_port_layer_tells_the_languages_apart():
     """__CUDACC__ (and OpenCL's extension macros) appear only in rt_port.h, rt_memory.h and rt_lanes.h."""
     split = re.compile(r"__CUDACC__|__CUDA_ARCH__|__OPENCL_VERSION__|cl_khr_\w+")
     outside = [f"{h.name}:{n}" for h in sorted(SHARED.glob("*.h")) if h.name not in PORT_LAYER
                for n, line in enumerate(h.read_text().splitlines(), 1) if split.search(line)]
     assert not outside, f"language split outside the port layer: {outside}"
+
+
+def test_thread_indices_come_from_the_port_layer():
+    """Kernels find their thread, block and pixel through rt_port.h's rt_global_id, rt_local_id, ...
+    (and rt_primary.h's launch_pixel, block_pixel's order): CUDA's and OpenCL's own names only there."""
+    native = re.compile(r"\b(?:blockIdx|threadIdx|blockDim|gridDim|get_global_id|get_local_id|get_group_id|"
+                        r"get_local_size|get_global_size)\b")
+    files = sorted(SHARED.glob("*.h")) + sorted(REFERENCE_KERNEL_DIR.glob("*/*.c[lu]"))
+    files += sorted((PACKAGE_DIR / "labs" / "harness").glob("*"))
+    outside = [f"{f.name}:{n}" for f in files if f.name != "rt_port.h"
+               for n, line in enumerate(f.read_text().splitlines(), 1) if native.search(line)]
+    assert not outside, f"thread indices outside rt_port.h: {outside}"
 
 
 def _functions(text: str):

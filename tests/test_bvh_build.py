@@ -165,7 +165,7 @@ def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
     ds.accel.pop("bvh", None)
     try:
         o, d = _rays(seed=7) if scene_name == "slivers" else _default_rays(scene)
-        got = trace(scene, o, d, backend, Variant("bvh"))
+        got = trace(scene, o, d, backend, Variant.paper(traversal="bvh"))
         assert ds.accel["bvh"][0] is arrays
     finally:
         ds.accel.pop("bvh", None)            # later tests get the default build again

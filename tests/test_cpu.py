@@ -24,7 +24,7 @@ from rtlab.reference import compare_hits, reference_trace
 from rtlab.reference.check import check_render
 from rtlab.scene.model import camera_rays
 
-PACKET = Variant("bvh-packet")
+PACKET = Variant.paper(traversal="bvh-packet")
 
 
 @pytest.fixture(scope="module")
@@ -110,14 +110,14 @@ def test_render_any_width_and_the_single_ray_path(backend, default_scene):
     from rtlab.device.whitted import render_whitted
     scene = default_scene
     for width, block in ((37, (32, 4)), (21, (4, 2))):
-        result = render(scene, backend, Variant("bvh-packet", block=block), size=width, write_hits=True)
+        result = render(scene, backend, Variant.paper(traversal="bvh-packet", block=block), size=width, write_hits=True)
         cam = scene.camera.with_size(width)
         assert result.image.shape[:2] == (cam.height, cam.width)
         report = check_render(scene, result, cam)
         assert report.hits.n_mismatch == 0, report.summary()
         assert report.hits.n_hits_ref > 0
-    a = render_whitted(scene, backend, Variant("bvh"), shadows="two-pass", write_hits=True)
-    b = render_whitted(scene, backend, Variant("bvh-packet"), shadows="two-pass", write_hits=True)
+    a = render_whitted(scene, backend, Variant.paper(traversal="bvh"), shadows="two-pass", write_hits=True)
+    b = render_whitted(scene, backend, Variant.paper(traversal="bvh-packet"), shadows="two-pass", write_hits=True)
     same = np.all(a.image == b.image, axis=-1)
     assert same.mean() > 0.99, f"{(~same).sum()} pixels differ between bvh and bvh-packet shadows"
 
@@ -208,9 +208,9 @@ def test_loader_shapes_and_refusals():
     features = SceneFeatures(stack_size=20, near_origin=True)
     defines = build_defines(PACKET, features)
     assert defines["RT_LANES"] == PACKET_LANES and defines["RT_TRAVERSAL"] == 6 and defines["RT_BVH_BOX_FMA"] == 1
-    assert rays_per_work_item(PACKET) == PACKET_LANES and rays_per_work_item(Variant("bvh")) == 1
+    assert rays_per_work_item(PACKET) == PACKET_LANES and rays_per_work_item(Variant.paper(traversal="bvh")) == 1
     assert primary_step(PACKET) == "00_primary"
-    for v in (Variant("bvh-packet", constants="global"), Variant("bvh-packet", ray_order="morton")):
+    for v in (Variant.paper(traversal="bvh-packet", constants="global"), Variant.paper(traversal="bvh-packet", ray_order="morton")):
         with pytest.raises(VariantError, match="bvh-packet"):
             primary_step(v)
 

@@ -1,23 +1,26 @@
-"""Every lab step exists in both languages, compiles in both, and the shared structs agree in size."""
+"""Every program (lab step or the library's) exists in both languages, compiles in both, and the shared
+structs agree in size."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from rtlab.backends.nvcc import nvcc_available, nvcc_resources
-from rtlab.device.kernels import SceneFeatures, Variant, build_defines, kernel_source, lab_steps, unpaired_steps
+from rtlab.device.kernels import (SceneFeatures, Variant, build_defines, kernel_programs, kernel_source, lab_steps,
+                                  unpaired_steps)
 from rtlab.device.layout import STRUCT_SIZES
 
-DEFAULT_DEFINES = build_defines(Variant(), SceneFeatures(stack_size=32, n_lights=2, n_materials=8))
+DEFAULT_DEFINES = build_defines(Variant.paper(), SceneFeatures(stack_size=32, n_lights=2, n_materials=8))
 
 
 def test_every_step_exists_in_both_languages():
     assert lab_steps(), "no lab step has kernels"
+    assert set(kernel_programs()) - set(lab_steps()) == {"library_trace", "library_shadows", "library_bounces"}
     assert unpaired_steps() == {"cuda_only": [], "opencl_only": []}
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
-@pytest.mark.parametrize("step", lab_steps())
+@pytest.mark.parametrize("step", kernel_programs())
 def test_cuda_step_compiles_for_sm90(step):
     """`nvcc -cubin -arch=sm_90 -Xptxas -v`: compiles; registers, stack and spills reported."""
     report = nvcc_resources(kernel_source(step, "cuda"), DEFAULT_DEFINES)
@@ -28,7 +31,7 @@ def test_cuda_step_compiles_for_sm90(step):
         assert 0 < r.registers <= 255
 
 
-@pytest.mark.parametrize("step", lab_steps())
+@pytest.mark.parametrize("step", kernel_programs())
 def test_opencl_step_builds(backend, step):
     if backend.language != "opencl":
         pytest.skip("OpenCL source check")

@@ -39,10 +39,10 @@ def bunny():
 
 def placements(backend) -> list[Variant]:
     """Every placement this backend runs, alone and all together."""
-    out = [Variant(node_memory="texture"), Variant(constants="global"), Variant(ray_memory="indexed"),
-           Variant(node_memory="texture", constants="global", ray_memory="indexed")]
+    out = [Variant.paper(node_memory="texture"), Variant.paper(constants="global"), Variant.paper(ray_memory="indexed"),
+           Variant.paper(node_memory="texture", constants="global", ray_memory="indexed")]
     if backend.language == "cuda":
-        out += [Variant(ray_memory="shared"), Variant(node_memory="texture", constants="global", ray_memory="shared")]
+        out += [Variant.paper(ray_memory="shared"), Variant.paper(node_memory="texture", constants="global", ray_memory="shared")]
     return out
 
 
@@ -55,13 +55,13 @@ def assert_same_render(result, base, what: str):
 @pytest.mark.parametrize("scene_fixture", ["default_scene", "bunny"])
 def test_placements_give_the_global_variants_hits(backend, scene_fixture, request):
     scene = request.getfixturevalue(scene_fixture)
-    base = render(scene, backend, Variant(), write_hits=True)
+    base = render(scene, backend, Variant.paper(), write_hits=True, lab=True)
     # The global variant itself against the float64 reference, so "same as global" means "right"
     report = check_render(scene, base, scene.camera)
     assert report.hits.n_mismatch == 0, report.summary()
     assert report.hits.n_hits_ref > 0.05 * report.hits.n_rays
     for v in placements(backend):
-        assert_same_render(render(scene, backend, v, write_hits=True), base, f"{scene.name} {v.label()}")
+        assert_same_render(render(scene, backend, v, write_hits=True, lab=True), base, f"{scene.name} {v.label()}")
 
 
 def test_trace_rays_through_placements(backend, default_scene):
@@ -70,10 +70,10 @@ def test_trace_rays_through_placements(backend, default_scene):
     lo, hi = default_scene.vertices.min(0), default_scene.vertices.max(0)
     o = rng.uniform(lo, hi, (3000, 3)).astype(np.float32)
     d = rng.normal(size=(3000, 3)).astype(np.float32)
-    base = rtlab.trace(default_scene, o, d, backend, Variant())
+    base = rtlab.trace(default_scene, o, d, backend, Variant.paper(), lab=True)
     assert base.hit.sum() > 300
     for v in placements(backend):
-        r = rtlab.trace(default_scene, o, d, backend, v)
+        r = rtlab.trace(default_scene, o, d, backend, v, lab=True)
         assert np.array_equal(r.tri, base.tri), v.label()
         assert np.array_equal(r.t.view(np.int32), base.t.view(np.int32)), v.label()
 
@@ -103,7 +103,7 @@ def test_texture_round_trip_reads_back_exactly(backend):
     buffers = [backend.to_device(a) for a in arrays]
     textures = [backend.texture(b, dt, ch, len(a)) for b, a, (dt, ch) in zip(buffers, arrays, SCENE_ELEMENTS)]
     program = backend.compile(kernel_source(MEMORY_STEP, backend.language),
-                              build_defines(Variant(node_memory="texture"), SceneFeatures()))
+                              build_defines(Variant.paper(node_memory="texture"), SceneFeatures()))
     for which, a in enumerate(arrays):
         n = len(a)
         out = backend.empty(n * 16)
@@ -136,41 +136,44 @@ BLOCKS = [(1, 32), (2, 32), (4, 32), (8, 8), (16, 16), (32, 4), (14, 32), (22, 2
 
 
 def test_block_shapes_give_the_same_image(backend, odd_scene):
-    base = _render_into_sentinel(odd_scene, backend, Variant(block=(32, 4)))
+    base = _render_into_sentinel(odd_scene, backend, Variant.paper(block=(32, 4)))
     assert (base >> 24 == 255).all(), "a pixel was never written"
     for block in BLOCKS:
-        pixels = _render_into_sentinel(odd_scene, backend, Variant(block=block))
+        pixels = _render_into_sentinel(odd_scene, backend, Variant.paper(block=block))
         assert np.array_equal(pixels, base), f"block {block[0]}x{block[1]}"
 
 
 @pytest.mark.parametrize("block", [(32, 4), (8, 8), (16, 16), (32, 32), (4, 32), (1, 32)])
 def test_morton_order_writes_every_pixel_once(backend, odd_scene, block):
-    rows = _render_into_sentinel(odd_scene, backend, Variant(block=block))
-    morton = _render_into_sentinel(odd_scene, backend, Variant(block=block, ray_order="morton"))
+    rows = _render_into_sentinel(odd_scene, backend, Variant.paper(block=block))
+    morton = _render_into_sentinel(odd_scene, backend, Variant.paper(block=block, ray_order="morton"))
     assert (morton >> 24 == 255).all(), "Morton order left pixels unwritten"
     assert np.array_equal(morton, rows)
 
 
 def test_variant_checks():
     with pytest.raises(VariantError, match="power-of-two"):
-        Variant(block=(22, 20), ray_order="morton")
+        Variant.paper(block=(22, 20), ray_order="morton")
     with pytest.raises(VariantError, match="max_registers"):
-        Variant(max_registers=8)
+        Variant.paper(max_registers=8)
     with pytest.raises(VariantError, match="ray placement"):
-        Variant(ray_memory="texture")
-    with pytest.raises(VariantError, match="own kernels"):
-        primary_step(Variant(traversal="packet", constants="global"))
-    assert primary_step(Variant(ray_memory="shared")) == MEMORY_STEP
-    assert primary_step(Variant(ray_memory="indexed")) == "00_primary"
-    assert Variant().label() == "stack/moller/global/32x4"
-    assert Variant(node_memory="texture", max_registers=32).label() == "stack/moller/texture/32x4/maxrreg32"
+        Variant.paper(ray_memory="texture")
+    with pytest.raises(VariantError, match="takes rays in packets"):
+        primary_step(Variant.paper(traversal="packet", constants="global"))
+    assert primary_step(Variant.paper(ray_memory="shared")) == MEMORY_STEP
+    assert primary_step(Variant.paper(ray_memory="indexed")) == "00_primary"
+    assert Variant.paper().label() == "stack/moller/global/32x4"
+    assert Variant().label() == "default/default/global/default"
+    assert Variant.paper(node_memory="texture", max_registers=32).label() == "stack/moller/texture/32x4/maxrreg32"
 
 
 def test_shared_ray_is_cuda_only(backend, default_scene):
     if backend.language == "cuda":
         pytest.skip("CUDA runs it (test_placements_give_the_global_variants_hits)")
     with pytest.raises(VariantError, match="CUDA only"):
-        render(default_scene, backend, Variant(ray_memory="shared"))
+        render(default_scene, backend, Variant.paper(ray_memory="shared"), lab=True)
+    with pytest.raises(VariantError, match="placement study"):
+        render(default_scene, backend, Variant.paper(constants="global"))       # the library's kernels
 
 
 class _FakeNvidia:
@@ -181,20 +184,20 @@ class _FakeNvidia:
 
 
 def test_register_cap_options():
-    v = Variant(max_registers=48)
+    v = Variant.paper(max_registers=48)
     assert build_options(v, "cuda") == ("-maxrregcount=48",)
     assert build_options(v, _FakeNvidia()) == ("-cl-nv-maxrregcount=48",)
-    assert build_options(Variant(), "cuda") == ()
+    assert build_options(Variant.paper(), "cuda") == ()
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
 def test_register_cap_reaches_nvcc():
-    defines = build_defines(Variant(), SceneFeatures(stack_size=32))
+    defines = build_defines(Variant.paper(), SceneFeatures(stack_size=32))
     src = kernel_source("00_primary", "cuda")
     free = nvcc_resources(src, defines)["render_primary"].registers
     cap = 24       # below what render_primary takes uncapped (32 to 40 with the stack traversal)
     assert free > cap, f"render_primary needs only {free} registers: pick a lower cap for this test"
-    capped = nvcc_resources(src, defines, extra_options=build_options(Variant(max_registers=cap), "cuda"))
+    capped = nvcc_resources(src, defines, extra_options=build_options(Variant.paper(max_registers=cap), "cuda"))
     assert capped["render_primary"].registers <= cap
 
 
@@ -204,10 +207,10 @@ def test_cuda_memory_step_keeps_the_ray_in_shared_memory():
     the other placements none."""
     features = SceneFeatures(stack_size=32)
     src = kernel_source(MEMORY_STEP, "cuda")
-    shared = nvcc_resources(src, build_defines(Variant(ray_memory="shared", block=(16, 8)), features))
+    shared = nvcc_resources(src, build_defines(Variant.paper(ray_memory="shared", block=(16, 8)), features))
     assert shared["render_primary"].shared_bytes >= 16 * 8 * 44
     assert shared["trace_rays"].shared_bytes >= TRACE_THREADS * 44
-    plain = nvcc_resources(src, build_defines(Variant(node_memory="texture", constants="global"), features))
+    plain = nvcc_resources(src, build_defines(Variant.paper(node_memory="texture", constants="global"), features))
     assert plain["render_primary"].shared_bytes == 0
 
 
@@ -294,11 +297,11 @@ def test_lab01_template_compiles_and_every_ray_misses(backend, default_scene, tm
     absolute_includes(tree)
     features = SceneFeatures(stack_size=32)
     if nvcc_available():
-        for v in (Variant(node_memory="texture"), Variant(node_memory="texture", ray_memory="shared")):
+        for v in (Variant.paper(node_memory="texture"), Variant.paper(node_memory="texture", ray_memory="shared")):
             assert "render_primary" in nvcc_resources(tree / "cuda" / "01_memory.cu", build_defines(v, features))
     if backend.language == "cuda":
         return
-    v = Variant(node_memory="texture")
+    v = Variant.paper(node_memory="texture")
     ds = device_scene(default_scene, backend)
     program = backend.compile(tree / "opencl" / "01_memory.cl", build_defines(v, ds.features(v), RT_WRITE_HITS=1))
     ds.set_constants(program, default_scene.camera, v)

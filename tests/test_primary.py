@@ -114,7 +114,7 @@ def test_ray_interval_and_bad_rays(backend, default_scene):
 def test_variant_names_are_checked():
     from rtlab.errors import VariantError
     with pytest.raises(VariantError, match="unknown traversal 'nope'"):
-        Variant(traversal="nope")
+        Variant.paper(traversal="nope")
 
 
 @pytest.mark.gpu

@@ -74,7 +74,7 @@ def test_tree_modes_give_the_same_image(backend, glass, bounces):
     plain = Scene(**{**vars(glass), "materials": [Material(m.name, m.diffuse, m.specular, m.shininess)
                                                     for m in glass.materials]})
     tree = render_whitted(plain, backend, bounces=bounces)
-    assert tree.step == "05_kernel_tree" and tree.depth == 0
+    assert tree.step == "library_bounces" and tree.depth == 0
     np.testing.assert_array_equal(tree.image, render_whitted(plain, backend, bounces=0).image)
 
 
@@ -441,8 +441,8 @@ def test_specialised_kernels_leave_code_out(step):
     if not nvcc_available():
         pytest.skip("nvcc not on PATH")
     base = SceneFeatures(stack_size=24, n_lights=1, n_materials=5)
-    special = build_defines(Variant(), SceneFeatures(**{**vars(base), "has_lights": False, "transparent": False}))
-    general = build_defines(Variant(), base)
+    special = build_defines(Variant.paper(), SceneFeatures(**{**vars(base), "has_lights": False, "transparent": False}))
+    general = build_defines(Variant.paper(), base)
     assert (special["RT_SHADOWS"], special["RT_LIGHTS"], special["RT_REFRACTION"]) == (0, 0, 0)
     r_special = nvcc_resources(kernel_source(step, "cuda"), special)
     r_general = nvcc_resources(kernel_source(step, "cuda"), general)

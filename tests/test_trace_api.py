@@ -26,8 +26,8 @@ def small_scene():
 
 def test_repeats_time_every_launch_and_give_the_same_hits(backend, small_scene):
     o, d = camera_rays(small_scene.camera)
-    once = trace(small_scene, o, d, backend, Variant(traversal="bvh"))
-    many = trace(small_scene, o, d, backend, Variant(traversal="bvh"), repeats=5, warmup=2)
+    once = trace(small_scene, o, d, backend, Variant.paper(traversal="bvh"))
+    many = trace(small_scene, o, d, backend, Variant.paper(traversal="bvh"), repeats=5, warmup=2)
     assert len(once.launches_ms) == 1 and len(many.launches_ms) == 5
     assert many.kernel_ms == pytest.approx(float(np.median(many.launches_ms)))
     assert all(ms > 0 for ms in many.launches_ms)
@@ -49,8 +49,8 @@ def test_ray_buffers_are_reused_for_the_same_count_only(backend, small_scene):
     assert len(part.tri) == half and ray_buffers(backend, half) is not first
 
 
-@pytest.mark.parametrize("variant", [Variant(traversal="bvh", block=(8, 16)), Variant(block=(32, 4)),
-                                     Variant(traversal="bvh", block=(8, 8), ray_order="morton")],
+@pytest.mark.parametrize("variant", [Variant.paper(traversal="bvh", block=(8, 16)), Variant.paper(block=(32, 4)),
+                                     Variant.paper(traversal="bvh", block=(8, 8), ray_order="morton")],
                          ids=lambda v: v.label())
 def test_image_shaped_launch_gives_the_same_hits(backend, small_scene, variant):
     """trace(width=) takes the rays in tiles of the block (a warp traces neighbours), hits unchanged;
@@ -127,7 +127,7 @@ def test_cuda_launch_time_leaves_out_the_host():
     n = 256
     o = np.full((n, 3), far, np.float32)
     d = np.full((n, 3), 1.0 / math.sqrt(3.0), np.float32)
-    r = trace(scene, o, d, be, Variant(traversal="bvh"), repeats=20, warmup=3)
+    r = trace(scene, o, d, be, Variant.paper(traversal="bvh"), repeats=20, warmup=3)
     assert not r.hit.any()
     assert r.kernel_ms < 0.010, f"{n} rays that miss the scene's box took {r.kernel_ms * 1e3:.1f} us of device time"
 

@@ -21,6 +21,7 @@ from rtlab.device.layout import float4_rows
 from rtlab.device.rendering import render
 from rtlab.device.scene import DeviceScene, device_scene, padded_bounds, scene_kdtree
 from rtlab.device.tracing import trace
+from rtlab.errors import VariantError
 from rtlab.reference import compare_hits, reference_trace
 from rtlab.scene.model import Camera, Material, Scene, camera_rays
 
@@ -94,7 +95,7 @@ class Case:
     def __init__(self, scene, o, d, backend, t_tol=T_REL_TOL):
         self.scene, self.o, self.d, self.t_tol = scene, o, d, t_tol
         self.ref = reference_trace(scene.vertices, scene.faces, o, d)
-        self.stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
+        self.stack = trace(scene, o, d, backend=backend, variant=Variant.paper(traversal="stack"))
 
     def compare(self, got, where):
         s = self.scene
@@ -153,7 +154,7 @@ def test_variant_matches_stack_and_reference(backend, scene_name, variant):
     """Camera rays and random rays from inside and outside the scene."""
     case = _case("camera+random", scene_name, backend)
     case.compare(case.stack, f"{scene_name} stack")
-    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant(variant))
+    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant.paper(traversal=variant))
     case.assert_like_stack(got, f"{scene_name} {variant}", same_tree=variant not in BVH_VARIANTS)
     assert np.mean(case.ref.tri >= 0) > 0.1
 
@@ -164,7 +165,7 @@ def test_rays_in_split_planes(backend, variant):
     (the stackless traversals make one pass per side)."""
     case = _case("split-planes", "sponza", backend)
     case.compare(case.stack, "sponza stack, rays in split planes")
-    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant(variant))
+    got = trace(case.scene, case.o, case.d, backend=backend, variant=Variant.paper(traversal=variant))
     case.assert_like_stack(got, f"sponza {variant}, rays in split planes", same_tree=variant not in BVH_VARIANTS)
 
 
@@ -173,7 +174,7 @@ def test_render_matches_reference(backend, variant):
     """The renderer's kernel (2D blocks: one packet per block for the packet traversal)."""
     from rtlab.reference.check import check_render
     scene = _preset("bunny")
-    result = render(scene, backend, Variant(variant, block=(16, 4)), write_hits=True)
+    result = render(scene, backend, Variant.paper(traversal=variant, block=(16, 4)), write_hits=True)
     report = check_render(scene, result, scene.camera)
     assert report.hits.n_mismatch == 0, report.summary()
     assert report.hits.t_rel_err_max <= T_REL_TOL, report.summary()
@@ -186,7 +187,7 @@ def test_single_triangle_scene(backend, variant):
     scene = _scene_from_mesh("one", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     o = np.array([[0.2, 0.2, 1], [0.9, 0.9, 1], [0.25, 0.25, -1], [0, 0, 1]], np.float32)
     d = np.array([[0, 0, -1], [0, 0, -1], [0, 0, 1], [0, 0, -1]], np.float32)
-    got = trace(scene, o, d, backend=backend, variant=Variant(variant))
+    got = trace(scene, o, d, backend=backend, variant=Variant.paper(traversal=variant))
     assert got.tri.tolist() == [0, -1, 0, 0]
     assert np.allclose(got.t[[0, 2, 3]], 1.0)
 
@@ -222,13 +223,13 @@ def deep_scene():
     return scene, tree, o, d
 
 
-@pytest.mark.parametrize("variant", [Variant("shortstack", short_stack=k) for k in (1, 2, 4, 8)]
-                         + [Variant(v) for v in ("restart", "ropes", "packet")], ids=lambda v: v.label().split("/")[0])
+@pytest.mark.parametrize("variant", [Variant.paper(traversal="shortstack", short_stack=k) for k in (1, 2, 4, 8)]
+                         + [Variant.paper(traversal=v) for v in ("restart", "ropes", "packet")], ids=lambda v: v.label().split("/")[0])
 def test_deep_tree(backend, deep_scene, variant):
     scene, tree, o, d = deep_scene
     _use_tree(scene, backend, tree)
     ref = reference_trace(scene.vertices, scene.faces, o, d)
-    stack = trace(scene, o, d, backend=backend, variant=Variant("stack"))
+    stack = trace(scene, o, d, backend=backend, variant=Variant.paper(traversal="stack"))
     got = trace(scene, o, d, backend=backend, variant=variant)
     assert np.mean(stack.tri >= 0) > 0.5
     # Tiny, steep triangles: the float32 test's t is off by up to ~1e-4 (the stack's too), and by
@@ -245,9 +246,9 @@ def test_stack_size_follows_tree_depth(backend, deep_scene):
     """The per-thread (and the packet's shared) stack is sized from the tree: depth + 1."""
     scene, tree, _, _ = deep_scene
     ds = DeviceScene.upload(backend, scene, tree)
-    assert ds.features(Variant("stack")).stack_size == tree.depth + 1
-    assert ds.features(Variant("packet")).stack_size == tree.depth + 1
-    bvh_stack = ds.features(Variant("bvh")).stack_size
+    assert ds.features(Variant.paper(traversal="stack")).stack_size == tree.depth + 1
+    assert ds.features(Variant.paper(traversal="packet")).stack_size == tree.depth + 1
+    bvh_stack = ds.features(Variant.paper(traversal="bvh")).stack_size
     assert bvh_stack == build_bvh(scene.vertices, scene.faces).depth + 1
 
 
@@ -260,26 +261,17 @@ ANY_HIT_KERNEL = r"""
 #if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #include "rt_packet.h"
 #endif
-#if defined(__CUDACC__)
-#define RAY_INDEX ((int)(blockIdx.x * blockDim.x + threadIdx.x))
-#define LANE ((int)threadIdx.x)
-#define LOCAL_DECL __shared__
-#else
-#define RAY_INDEX ((int)get_global_id(0))
-#define LANE ((int)get_local_id(0))
-#define LOCAL_DECL __local
-#endif
 RT_KERNEL void any_hits(RT_SCENE_PARAMS, RT_GLOBAL const float4 *box, RT_GLOBAL const float4 *origins,
                         RT_GLOBAL const float4 *directions, RT_GLOBAL int *blocked, int n)
 {
-    int i = RAY_INDEX;
+    int i = rt_global_id(0);
     int valid = i < n;
     int j = valid ? i : 0;
     Ray ray = make_ray(xyz(origins[j]), xyz(directions[j]), origins[j].w, directions[j].w);
 #if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
-    LOCAL_DECL KdPacketShared packet;
+    RT_SHARED KdPacketShared packet;
     Hit hit = make_miss(ray.tmax);
-    traverse_kd_packet(RT_SCENE_ARGS, box[0], box[1], &ray, valid, &hit, 1, &packet, LANE);
+    traverse_kd_packet(RT_SCENE_ARGS, box[0], box[1], &ray, valid, &hit, 1, &packet, rt_local_id(0));
     int any = hit.tri >= 0;
 #else
     int any = trace_any(RT_SCENE_ARGS, box[0], box[1], &ray);
@@ -297,7 +289,7 @@ def test_any_hit_agrees_with_closest_hit(backend, variant, tmp_path):
     scene = case.scene
     n = len(case.o)
     tmax = np.where(np.arange(n) % 2 == 0, np.inf, np.random.default_rng(3).uniform(0.1, 20.0, n)).astype(np.float32)
-    v = Variant(variant)
+    v = Variant.paper(traversal=variant)
     closest = trace(scene, case.o, case.d, backend=backend, variant=v, tmax=tmax)
     src = tmp_path / ("any_hit" + backend.extension)
     src.write_text(ANY_HIT_KERNEL)
@@ -426,13 +418,21 @@ def test_bvh_cache_round_trip(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # kernels and loader
 # ------------------------------------------------------------------------------------------------
-def test_packet_uses_the_traversal_step_and_single_ray_steps_refuse_it(backend):
+def test_packet_runs_in_the_trace_programs_and_single_ray_programs_refuse_it(backend):
+    """The kd packet's stack lives in block-wide memory that only the entry kernels of closest hits and
+    primary rays declare: lab step 03 (the labs') and the library's trace program run it; a program of
+    single-ray kernels (shadows) is a build error, not a silent fallback to another traversal."""
+    from rtlab.device.variants import program_for
     from rtlab.errors import KernelBuildError
-    assert primary_step(Variant("packet")) == "03_traversal"
-    assert {primary_step(Variant(v)) for v in TRAVERSALS if v != "packet"} == {"00_primary"}
-    defines = build_defines(Variant("packet"), SceneFeatures(stack_size=32))
-    with pytest.raises(KernelBuildError, match="03_traversal"):
-        backend.compile(kernel_source("00_primary", backend.language), defines)
+    packet = Variant.paper(traversal="packet")
+    assert primary_step(packet) == "03_traversal" and program_for("trace", packet) == "library_trace"
+    assert {primary_step(Variant.paper(traversal=v)) for v in TRAVERSALS if v != "packet"} == {"00_primary"}
+    defines = build_defines(packet, SceneFeatures(stack_size=32))
+    backend.compile(kernel_source("library_trace", backend.language), defines)
+    with pytest.raises(KernelBuildError, match="block-wide shared stack"):
+        backend.compile(kernel_source("library_shadows", backend.language), defines)
+    with pytest.raises(VariantError, match="no shadow or secondary-ray kernels"):
+        program_for("shadows", packet)
 
 
 @pytest.mark.parametrize("variant", ["restart", "shortstack", "ropes"])
@@ -440,11 +440,11 @@ def test_stackless_traversals_refuse_trees_deeper_than_their_tie_bits(backend, v
     """The stackless descents keep one bit per tree level (64 bits): a deeper tree is a build
     error naming the limit, never a silent loss of hits."""
     from rtlab.errors import KernelBuildError
-    defines = build_defines(Variant(variant), SceneFeatures(stack_size=65))
+    defines = build_defines(Variant.paper(traversal=variant), SceneFeatures(stack_size=65))
     with pytest.raises(KernelBuildError, match="deeper than 63"):
-        backend.compile(kernel_source(primary_step(Variant(variant)), backend.language), defines)
-    backend.compile(kernel_source(primary_step(Variant(variant)), backend.language),
-                    build_defines(Variant(variant), SceneFeatures(stack_size=64)))
+        backend.compile(kernel_source(primary_step(Variant.paper(traversal=variant)), backend.language), defines)
+    backend.compile(kernel_source(primary_step(Variant.paper(traversal=variant)), backend.language),
+                    build_defines(Variant.paper(traversal=variant), SceneFeatures(stack_size=64)))
 
 
 @pytest.mark.skipif(not __import__("rtlab.backends.nvcc", fromlist=["x"]).nvcc_available(), reason="nvcc not on PATH")
@@ -453,7 +453,7 @@ def test_traversal_step_compiles_for_sm90(variant):
     """03_traversal.cu with every traversal: compiles with nvcc; registers, stack and shared
     memory reported (the paper's "Reg. usage" and occupancy rows)."""
     from rtlab.backends.nvcc import nvcc_resources
-    defines = build_defines(Variant(variant), SceneFeatures(stack_size=30, n_lights=2, n_materials=8))
+    defines = build_defines(Variant.paper(traversal=variant), SceneFeatures(stack_size=30, n_lights=2, n_materials=8))
     report = nvcc_resources(kernel_source("03_traversal", "cuda"), defines)
     assert set(report) == {"trace_rays", "render_primary"}
     for name, r in report.items():
@@ -472,9 +472,9 @@ def test_fused_box_test_only_for_scenes_near_the_origin():
     near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     far = _scene_from_mesh("far", [[1e5, 0, 0], [1e5 + 1, 0, 0], [1e5, 1, 0]], [[0, 1, 2]])
     assert near_origin(near) and not near_origin(far)
-    assert build_defines(Variant("bvh"), scene_features(near, 8))["RT_BVH_BOX_FMA"] == 1
-    assert build_defines(Variant("bvh"), scene_features(far, 8))["RT_BVH_BOX_FMA"] == 0
-    assert "RT_BVH_BOX_FMA" not in build_defines(Variant("stack"), scene_features(near, 8))
+    assert build_defines(Variant.paper(traversal="bvh"), scene_features(near, 8))["RT_BVH_BOX_FMA"] == 1
+    assert build_defines(Variant.paper(traversal="bvh"), scene_features(far, 8))["RT_BVH_BOX_FMA"] == 0
+    assert "RT_BVH_BOX_FMA" not in build_defines(Variant.paper(traversal="stack"), scene_features(near, 8))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -647,15 +647,15 @@ def test_direction_length_does_not_change_the_answer(backend, variant):
     t in the caller's units (t * |d| the same distance). A power of two scales exactly."""
     scene = rtlab.load_scene("default", size=24)
     o, d = camera_rays(scene.camera)
-    unit = trace(scene, o, d, backend=backend, variant=Variant(variant))
+    unit = trace(scene, o, d, backend=backend, variant=Variant.paper(traversal=variant))
     hit = unit.tri >= 0
     for scale in (2.0 ** -100, 2.0 ** -64, 2.0 ** 64, 2.0 ** 100):
-        got = trace(scene, o, (d * scale).astype(np.float32), backend=backend, variant=Variant(variant))
+        got = trace(scene, o, (d * scale).astype(np.float32), backend=backend, variant=Variant.paper(traversal=variant))
         assert np.array_equal(got.tri, unit.tri), f"length {scale:g}: {np.sum(got.tri != unit.tri)} rays differ"
         assert np.array_equal(got.t[hit] * np.float32(scale), unit.t[hit])
     for length in (1e-30, 1e30):
         dl = (d.astype(np.float64) * length).astype(np.float32)
-        got = trace(scene, o, dl, backend=backend, variant=Variant(variant))
+        got = trace(scene, o, dl, backend=backend, variant=Variant.paper(traversal=variant))
         ref = reference_trace(scene.vertices, scene.faces, o, dl)
         c = compare_hits(ref, got.tri, got.t, scene.vertices, scene.faces, o, dl)
         assert c.n_mismatch == 0 and c.t_rel_err_max <= T_REL_TOL, f"length {length:g}: {c.summary()}"

@@ -11,8 +11,8 @@
  * Every thread of the block must call the traversal (invalid ones with valid = 0): it contains
  * barriers. The paper found the packet slow on CUDA (15.8 vs 43.2 fps): two barriers per node.
  *
- * Entry kernels declare the KdPacketShared at kernel scope (kernels/cuda/03_traversal.cu,
- * kernels/opencl/03_traversal.cl): OpenCL allows __local variables only there. Pointers to it are
+ * Entry kernels declare the KdPacketShared at kernel scope (rt_entry_trace.h, rt_entry_ray_grid.h):
+ * OpenCL allows __local variables only there. Pointers to it are
  * RT_SHARED_PTR; barriers and the votes' atomics are rt_port.h's rt_barrier, rt_shared_atomic_add.
  */
 #ifndef RT_PACKET_H
@@ -142,7 +142,7 @@ RT_FN void traverse_kd_packet(RT_SCENE_PARAMS, float4 scene_min, float4 scene_ma
     /* END SOLUTION */
 }
 
-/* Closest hit of one ray of a packet (lab step 03's trace_rays). origin.w = tmin, direction.w = tmax */
+/* Closest hit of one ray of a packet (trace_rays, trace_ray_grid). origin.w = tmin, direction.w = tmax */
 RT_FN Hit trace_one_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origin, float4 direction,
                            int valid, RT_SHARED_PTR KdPacketShared *sh, int lane)
 {

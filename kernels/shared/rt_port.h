@@ -6,7 +6,12 @@
  * scene's buffers live and how they are read) and rt_lanes.h (SIMD lane vectors of the CPU packet
  * traversal). Algorithm headers include them and are written in the C both languages accept: no
  * references, templates, overloads or default arguments; results come back through a pointer
- * (Hit *hit). Entry kernels (kernels/cuda/, kernels/opencl/) spell the rest their own way.
+ * (Hit *hit). Entry kernels are written once too (rt_entry_*.h), through the kernel-side macros
+ * below: RT_KERNEL, RT_IN/RT_OUT buffers, RT_SHARED block-wide variables, the thread indices
+ * (rt_global_id...) and the constant-memory items (RT_WITH_FRAME in a signature, rt_frame in a body:
+ * CUDA reads module symbols c_frame, c_lights, c_materials, which each .cu declares; OpenCL takes
+ * __constant pointers, last). A program's .cu and .cl files only declare storage and pick the entry
+ * headers it holds.
  *
  * Pitfall: float3 is 12 bytes in CUDA and 16 in OpenCL. It is used only in registers, never in a
  * buffer shared with the host (those are float4, mirrored by numpy dtypes in rtlab/device/layout.py).
@@ -75,6 +80,9 @@
 #ifndef RT_WRITE_HITS              /* 1: the render kernel also writes each pixel's hit record */
 #define RT_WRITE_HITS 0
 #endif
+#ifndef RT_TRACE_THREADS           /* threads a block of trace_rays: the host launches this many (read from */
+#define RT_TRACE_THREADS 128       /* here); a ray in shared memory takes one slot of a block's array each */
+#endif
 
 /* ---- Language split ---- */
 #if defined(__CUDACC__)
@@ -115,13 +123,30 @@ RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
 {
     return __byte_perm(w, hi, 0x7604u | ((unsigned int)k << 4));
 }
+/* Thread indices of a launch of up to two dimensions (d = 0: x, 1: y), as ints: the thread in its
+ * block, the block, threads a block, the thread in the launch (unsigned arithmetic, as CUDA's own) */
+#define rt_local_id(d) ((int)((d) == 0 ? threadIdx.x : threadIdx.y))
+#define rt_group_id(d) ((int)((d) == 0 ? blockIdx.x : blockIdx.y))
+#define rt_local_size(d) ((int)((d) == 0 ? blockDim.x : blockDim.y))
+#define rt_global_id(d) ((int)((d) == 0 ? blockIdx.x * blockDim.x + threadIdx.x : blockIdx.y * blockDim.y + threadIdx.y))
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
 {
     return (blockIdx.x * blockDim.x + threadIdx.x) + gridDim.x * blockDim.x * (blockIdx.y * blockDim.y + threadIdx.y);
 }
+/* Entry kernels' buffers, block-wide variables and constant-memory items (see the top) */
+#define RT_IN(type) const type *__restrict__
+#define RT_OUT(type) type *__restrict__
+#define RT_SHARED __shared__
+#define RT_WITH_FRAME
+#define RT_WITH_FRAME_MATERIALS
+#define RT_WITH_SHADING
+#define rt_frame (&c_frame)
+#define rt_lights c_lights
+#define rt_materials c_materials
 RT_FN float3 f3(float x, float y, float z) { return make_float3(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return make_float4(x, y, z, w); }
+RT_FN int4 i4(int x, int y, int z, int w) { return make_int4(x, y, z, w); }
 RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #else /* OpenCL C */
 #define RT_FN static inline
@@ -163,12 +188,27 @@ RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
 {
     return (((w >> (8 * k)) & 0xFFu) << 8) | hi;
 }
+#define rt_local_id(d) ((int)get_local_id(d))
+#define rt_group_id(d) ((int)get_group_id(d))
+#define rt_local_size(d) ((int)get_local_size(d))
+#define rt_global_id(d) ((int)get_global_id(d))
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {
     return (unsigned int)(get_global_id(0) + get_global_size(0) * get_global_id(1));
 }
+#define RT_IN(type) __global const type *restrict
+#define RT_OUT(type) __global type *restrict
+#define RT_SHARED __local                  /* OpenCL C: only at a kernel's outermost scope */
+#define RT_WITH_FRAME , RT_CONST const RtFrame *frame
+#define RT_WITH_FRAME_MATERIALS , RT_CONST const RtFrame *frame, RT_CONST const RtMaterial *materials
+#define RT_WITH_SHADING , RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights, \
+    RT_CONST const RtMaterial *materials
+#define rt_frame frame
+#define rt_lights lights
+#define rt_materials materials
 RT_FN float3 f3(float x, float y, float z) { return (float3)(x, y, z); }
 RT_FN float4 f4(float x, float y, float z, float w) { return (float4)(x, y, z, w); }
+RT_FN int4 i4(int x, int y, int z, int w) { return (int4)(x, y, z, w); }
 /* OpenCL 1.2 has no float atomics: compare-and-swap on the bits. */
 RT_FN void rt_atomic_add_float(volatile RT_GLOBAL float *p, float v)
 {

@@ -1,6 +1,6 @@
-/* rt_primary.h - per-ray work of lab step 00 (primary rays, simple shading: the paper's Table 4
- * setting). Entry kernels in cuda/00_primary.cu and opencl/00_primary.cl only find their ray index
- * and call these. */
+/* rt_primary.h - per-ray work of closest hits and primary rays (simple shading: the paper's Table 4
+ * setting), and how threads map to pixels. The entry kernels (rt_entry_trace.h, rt_entry_ray_grid.h,
+ * rt_entry_loop.h) only find their ray or pixel and call these. */
 #ifndef RT_PRIMARY_H
 #define RT_PRIMARY_H
 #include "rt_traverse.h"
@@ -28,7 +28,7 @@ RT_FN Hit trace_one(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, float4 origi
 
 /* Closest hit of one ray among triangles [0, n_tris), no acceleration structure, its distance
  * refined as closest_hit's: the brute force in the kernels' own arithmetic that every traversal must
- * match, ties included (lab step 02's trace_rays_loop). */
+ * match, ties included (trace_rays_loop, rt_entry_loop.h). */
 RT_FN Hit trace_one_loop(RT_SCENE_PARAMS, float4 origin, float4 direction, int n_tris)
 {
     Ray ray = make_ray(xyz(origin), xyz(direction), origin.w, direction.w);
@@ -187,5 +187,10 @@ RT_FN void block_pixel(int bx, int by, int bw, int bh, int tx, int ty, int *x, i
 #endif
 }
 
+/* This thread's pixel in a 2-D launch: its block's tile, in block_pixel's order. */
+RT_FN void launch_pixel(int *x, int *y)
+{
+    block_pixel(rt_group_id(0), rt_group_id(1), rt_local_size(0), rt_local_size(1), rt_local_id(0), rt_local_id(1), x, y);
+}
 
 #endif /* RT_PRIMARY_H */

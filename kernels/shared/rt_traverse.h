@@ -2,9 +2,10 @@
  * names, so ray-generation and shading code reads the same for every variant:
  *   trace_closest  closest hit (primary, reflection and refraction rays)
  *   trace_any      any hit within (tmin, tmax): occlusion (shadow rays, §3.2.1)
- * The packet traversal needs the block-wide shared stack that only its entry kernels declare (lab
- * step 03_traversal, which calls traverse_kd_packet itself); a single-ray kernel built for it is a
- * compile error rather than a silent fallback to another traversal. */
+ * The packet traversal needs the block-wide shared stack that only the entry kernels of closest hits
+ * and primary rays declare (rt_entry_trace.h, rt_entry_ray_grid.h: they call traverse_kd_packet
+ * themselves); any other kernel built for it (shadows, secondary rays) is a compile error rather than
+ * a silent fallback to another traversal. */
 #ifndef RT_TRAVERSE_H
 #define RT_TRAVERSE_H
 #include "rt_kdtree.h"
@@ -39,10 +40,10 @@
 #define RT_TRAVERSE_RAY traverse_bvh_wide
 #elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
 #ifndef RT_PACKET_KERNELS
-#error "the packet traversal needs its block-wide shared stack: use lab step 03_traversal (rtlab.device.kernels.primary_step)"
+#error "the packet traversal needs its block-wide shared stack, which only trace_rays, trace_ray_grid and render_primary declare"
 #endif
 #include "rt_packet.h"
-/* 03_traversal's packet kernels call traverse_kd_packet; the single-ray names stay defined, unused */
+/* the packet kernels call traverse_kd_packet; the single-ray names stay defined, unused */
 #define RT_TRAVERSE_RAY traverse_kd_stack
 #else
 #error "unknown RT_TRAVERSAL (codes atop rt_port.h)"

@@ -1,7 +1,7 @@
 /* rt_whitted.h - Whitted ray tracing as the paper does it (§3.2): point lights with a Blinn-Phong
  * highlight, shadow rays (§3.2.1, lab step 04), and reflection/refraction rays traced by a kernel
- * tree (§3.2.2, lab step 05). Entry kernels in cuda/04_shadows.cu, cuda/05_kernel_tree.cu and their
- * OpenCL twins only find their index and call the functions at the end of this file.
+ * tree (§3.2.2, lab step 05). The entry kernels (rt_entry_shadows.h, rt_entry_bounces.h) only find
+ * their index and call the functions at the end of this file.
  *
  * The shading model (rtlab/reference/whitted.py implements it again, independently, in float64;
  * keep the two in sync):

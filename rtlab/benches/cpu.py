@@ -145,7 +145,8 @@ def bench_cpu_variants(batch, backend, variants: list[Variant], rounds: int = 7,
     """Trace ``batch`` (a rtlab.benches.rays.RayBatch) with rtlab on ``backend`` in each variant and
     with Embree, in turns, ``rounds`` times after one untimed round each: a row per variant with
     the medians, the ratio to Embree's run of the same rounds and both errors."""
-    from ..device.tracing import default_variant, trace
+    from ..device.tracing import default_variant, resolve_variant, trace
+    variants = [resolve_variant(v, backend) for v in variants]
     if rounds < 1:
         raise RtlabError(f"rounds must be at least 1, got {rounds}")
     if not variants:

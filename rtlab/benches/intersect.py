@@ -17,11 +17,12 @@ import numpy as np
 
 from ..device.kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
 from ..device.layout import HIT_DTYPE
+from ..device.variants import LAB_PROGRAMS
 from ..scene.model import Camera, Scene
 from .paper_figures import PAPER_TABLE3_MS, PAPER_TABLE3_REGISTERS
 from .tables import Table, fmt, report_markdown
 
-INTERSECT_STEP = "02_intersect"
+INTERSECT_STEP = LAB_PROGRAMS["loop"]
 TABLE3_TRIANGLES = 1000
 
 
@@ -58,7 +59,7 @@ def intersect_loop(scene: Scene, backend, isect: str = "moller", n_tris: int = T
     from ..device.scene import device_scene
     camera = camera or scene.camera
     n_tris = int(min(n_tris, scene.n_triangles))
-    variant = Variant(intersection=isect)
+    variant = Variant.paper(intersection=isect)
     ds = device_scene(scene, backend)
     program = load_program(backend, INTERSECT_STEP, variant, ds.features(variant), **defines)
     ds.set_constants(program, camera, variant)
@@ -92,7 +93,7 @@ def nvcc_registers(isect: str, features: SceneFeatures | None = None) -> dict | 
     from ..backends.nvcc import nvcc_available, nvcc_resources
     if not nvcc_available():
         return None
-    defines = build_defines(Variant(intersection=isect), features or SceneFeatures())
+    defines = build_defines(Variant.paper(intersection=isect), features or SceneFeatures())
     report = nvcc_resources(kernel_source(INTERSECT_STEP, "cuda"), defines)
     r = report.get("intersect_triangles")
     return None if r is None else {"registers": r.registers, "local_bytes": r.local_bytes,
@@ -143,7 +144,7 @@ def bench_table3(scene: Scene, backend, isects, size: int, n_tris: int = TABLE3_
                         loop.mtests_per_s, nvcc_registers(isect), tri_bytes_read(isect), tri_data_bytes(isect),
                         error)
         if render_scene is not None:
-            row.render = bench_render(render_scene, backend, Variant(intersection=isect), repeats=render_repeats,
+            row.render = bench_render(render_scene, backend, Variant.paper(intersection=isect), repeats=render_repeats,
                                       check=check)
         rows.append(row)
     return rows

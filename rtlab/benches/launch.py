@@ -134,7 +134,7 @@ def _base(scene, backend, variant, repeats, check):
     if check:
         from ..reference.check import check_render
         from ..device.rendering import render
-        error = check_render(scene, render(scene, backend, variant, write_hits=True), scene.camera).as_dict()
+        error = check_render(scene, render(scene, backend, variant, write_hits=True, lab=True), scene.camera).as_dict()
     return timed, error
 
 
@@ -153,7 +153,7 @@ def block_sweep(scene: Scene, backend, blocks=FIG4_BLOCKS, orders=("rows", "mort
                 check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 4 and ray order: every block shape (and order), the same rays, the same hits."""
     from ..device.scene import device_scene
-    base = base or Variant()
+    base = base or Variant.paper()
     features = device_scene(scene, backend).features(base)
     base_timed, error = _base(scene, backend, base, repeats, check)
     rows = []
@@ -182,7 +182,7 @@ def register_sweep(scene: Scene, backend, traversals=FIG5_TRAVERSALS, caps=FIG5_
                    check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 5 by register caps: each traversal at each cap (one point a traversal on PoCL)."""
     from ..device.scene import device_scene
-    base = base or Variant()
+    base = base or Variant.paper()
     rows = []
     for name in traversals:
         uncapped = base.with_(traversal=name, max_registers=0)
@@ -212,7 +212,7 @@ def occupancy_sweep(scene: Scene, backend, traversals=("stack",), blocks_per_sm=
     if backend.name != "cuda":
         return []
     from ..device.scene import device_scene
-    base = base or Variant()
+    base = base or Variant.paper()
     limits = backend.limits
     rows = []
     for name in traversals:

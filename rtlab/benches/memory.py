@@ -55,12 +55,12 @@ class MemoryRow:
 
 
 def placement_variant(name: str, base: Variant | None = None) -> Variant:
-    return (base or Variant()).with_(**PLACEMENTS[name][0])
+    return (base or Variant.paper()).with_(**PLACEMENTS[name][0])
 
 
 def _hits(scene, backend, variant):
     from ..device.rendering import render
-    return render(scene, backend, variant, write_hits=True)
+    return render(scene, backend, variant, write_hits=True, lab=True)
 
 
 def hit_difference(result, base) -> dict:
@@ -75,7 +75,7 @@ def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, chec
     """Every placement on ``scene``'s camera on ``backend`` (CUDA-only ones skipped elsewhere)."""
     from ..device.scene import device_scene
     names = [n for n in (placements or PLACEMENTS) if backend.language == "cuda" or n not in CUDA_ONLY]
-    base = base or Variant()
+    base = base or Variant.paper()
     reference = _hits(scene, backend, base)
     rows: list[MemoryRow] = []
     global_error: dict = {}
@@ -94,7 +94,7 @@ def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, chec
         elif check:
             from ..reference.check import check_render
             from ..device.rendering import render
-            row.error = check_render(scene, render(scene, backend, variant, write_hits=True), scene.camera).as_dict()
+            row.error = check_render(scene, render(scene, backend, variant, write_hits=True, lab=True), scene.camera).as_dict()
         features = device_scene(scene, backend).features(variant)
         rows.append(MemoryRow(name, PLACEMENTS[name][1], row, nvcc_render_report(variant, features), diff, error_from))
     return rows
@@ -111,7 +111,7 @@ def compiler_report(features=None, block: tuple[int, int] = (32, 4), caps=REPORT
     out = []
     for ray in RAY_PLACEMENTS:
         for cap in caps:
-            v = Variant(ray_memory=ray, max_registers=cap, block=block)
+            v = Variant.paper(ray_memory=ray, max_registers=cap, block=block)
             # every ray placement through the same kernel file, so only the placement differs
             from ..backends.nvcc import nvcc_resources
             report = nvcc_resources(kernel_source("01_memory", "cuda"), build_defines(v, features),

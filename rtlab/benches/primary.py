@@ -41,10 +41,14 @@ class BenchRow:
 
 
 def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, warmup: int = 3,
-                 check: bool = True, view: str = "preset") -> BenchRow:
-    """Time the render kernel on the scene's camera; check its hits against the float64 reference."""
+                 check: bool = True, view: str = "preset", lab: bool = True) -> BenchRow:
+    """Time the render kernel on the scene's camera; check its hits against the float64 reference.
+    ``lab``: the lab steps' kernels, where the paper's variants live (the paper's tables); False: the
+    library's (the same entry kernels, its own program)."""
     from ..device.rendering import render
-    timed = render(scene, backend, variant, repeats=repeats, warmup=warmup, write_hits=False)
+    from ..device.variants import resolve_variant
+    variant = resolve_variant(variant, backend)
+    timed = render(scene, backend, variant, repeats=repeats, warmup=warmup, write_hits=False, lab=lab)
     row = BenchRow(scene.name, view, backend.name, backend.device_name, variant.label(), scene.camera.width,
                    timed.median_ms, timed.mrays_per_s, 1e3 / timed.median_ms,
                    timed.resources.get("registers"), timed.resources.get("occupancy"),
@@ -53,7 +57,7 @@ def bench_render(scene: Scene, backend, variant: Variant, repeats: int = 25, war
     row.extra["spread_ms"] = (float(np.min(timed.kernel_ms)), float(np.max(timed.kernel_ms)))
     if check:
         from ..reference.check import check_render
-        checked = render(scene, backend, variant, repeats=1, write_hits=True)
+        checked = render(scene, backend, variant, repeats=1, write_hits=True, lab=lab)
         row.error = check_render(scene, checked, scene.camera).as_dict()
     return row
 

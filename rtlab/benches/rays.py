@@ -9,7 +9,7 @@ Ray kinds (the README's definitions):
   direction: cosine-weighted about that normal from ``numpy.random.default_rng(1)``.
 
     batch = make_rays("sponza/inside", "diffuse", 1024)
-    row = bench_rays(batch, backend, Variant(traversal="bvh"))
+    row = bench_rays(batch, backend, Variant(traversal="bvh"))    # the rest: the device's default
 """
 from __future__ import annotations
 
@@ -165,7 +165,8 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     """Time ``trace`` on the batch (median device time of ``repeats`` launches after ``warmup``),
     check the subsample against the float64 reference, and for primary rays time the render kernel
     on the same camera (what trace should match)."""
-    from ..device.tracing import trace
+    from ..device.tracing import resolve_variant, trace
+    variant = resolve_variant(variant, backend)
     # primary rays are an image: traced in tiles of the variant's block (trace's width=)
     width = batch.size if batch.kind == "primary" else None
     result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,

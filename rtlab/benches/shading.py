@@ -95,7 +95,7 @@ def _check(scene: Scene, backend, variant, check_size: int, **kw) -> dict:
     if not check_size:
         return {}
     from ..reference.whitted import reference_whitted, whitted_error
-    result = render_whitted(scene, backend, variant, size=check_size, write_hits=True, **kw)
+    result = render_whitted(scene, backend, variant, lab=True, size=check_size, write_hits=True, **kw)
     ref = reference_whitted(scene, scene.camera.with_size(check_size), bounces=result.depth,
                             shadows=kw.get("shadows", "one-pass") != "none", fresnel=kw.get("fresnel", "schlick"))
     tree = result.tree if result.tree is not None else {"P": result.hits.tri}
@@ -113,9 +113,9 @@ def _row(table, scene, mode, backend, result: WhittedResult, paper, error) -> Sh
 def bench_shadows(scene: Scene, backend, mode: str, size: int, repeats: int = 10, check_size: int = 128,
                   variant: Variant | None = None, materials: str = "file") -> ShadingRow:
     """Table 5, shadow columns: one-pass or two-pass shadows, no secondary rays."""
-    variant = variant or Variant()
+    variant = variant or Variant.paper()
     scene = apply_materials(scene, materials)   # a copy; the upload is shared (by content)
-    result = render_whitted(scene, backend, variant, size=size, shadows=mode, repeats=repeats, warmup=2)
+    result = render_whitted(scene, backend, variant, lab=True, size=size, shadows=mode, repeats=repeats, warmup=2)
     error = _check(scene, backend, variant, check_size, shadows=mode)
     return _row("shadows", scene, mode, backend, result, PAPER_SHADOW_FPS.get(scene.name, {}).get(mode), error)
 
@@ -124,13 +124,13 @@ def bench_bounces(scene: Scene, backend, bounces: int, size: int, repeats: int =
                   variant: Variant | None = None, materials: str = "paper", shadows: str = "one-pass") -> ShadingRow:
     """Table 5, bounce columns: the kernel tree at ``bounces``, without and with compaction, and the
     wavefront schedule."""
-    variant = variant or Variant()
+    variant = variant or Variant.paper()
     scene = apply_materials(scene, materials)
-    plain = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
+    plain = render_whitted(scene, backend, variant, lab=True, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
                            warmup=2)
-    compact = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, compact=True,
+    compact = render_whitted(scene, backend, variant, lab=True, size=size, shadows=shadows, bounces=bounces, compact=True,
                              repeats=repeats, warmup=2)
-    wave = (render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
+    wave = (render_whitted(scene, backend, variant, lab=True, size=size, shadows=shadows, bounces=bounces, repeats=repeats,
                            warmup=2, schedule="wavefront") if shadows != "two-pass" else None)
     error = _check(scene, backend, variant, check_size, shadows=shadows, bounces=bounces)
     row = _row("bounces", scene, f"{bounces} bounce{'s' if bounces > 1 else ''}", backend, plain,
@@ -149,12 +149,12 @@ def bench_specialisation(scene: Scene, backend, bounces: int, size: int, repeats
                          variant: Variant | None = None, materials: str = "file",
                          shadows: str = "one-pass") -> list[ShadingRow]:
     """The scene-specialised kernel and the general one: registers, time, and whether the images agree."""
-    variant = variant or Variant()
+    variant = variant or Variant.paper()
     scene = apply_materials(scene, materials)
     rows = []
     results = {}
     for specialise in (True, False):
-        result = render_whitted(scene, backend, variant, size=size, shadows=shadows, bounces=bounces,
+        result = render_whitted(scene, backend, variant, lab=True, size=size, shadows=shadows, bounces=bounces,
                                 repeats=repeats, warmup=2, specialise=specialise)
         results[specialise] = result
         row = _row("specialised", scene, "specialised" if specialise else "general", backend, result, None, {})

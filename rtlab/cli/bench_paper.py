@@ -100,7 +100,7 @@ def bench_traversal(ctx: typer.Context,
     occupancy and error, beside the paper's figures."""
     from ..benches.traversal import bench_table4, resources_text, table4_markdown, table4_tables
     from ..device.kernels import Variant
-    base = Variant(intersection=isect, block=block_shape(block), short_stack=short_stack)
+    base = Variant.paper(intersection=isect, block=block_shape(block), short_stack=short_stack)
     chosen = names(traversals)
     for t in chosen:
         base.with_(traversal=t)                   # unknown names fail here, before any work

@@ -1,4 +1,4 @@
-"""Commands about the machine and the scenes: rtlab info, scenes, build, inspect."""
+"""Commands about the machine, the variants and the scenes: rtlab info, variants, scenes, build, inspect."""
 from __future__ import annotations
 
 import time
@@ -28,6 +28,28 @@ def info():
     why = sandbox.seccomp_available()
     console.print("grader sandbox: " + escape(sandbox.describe(None if why else sandbox.sandbox_user())
                                                if not why else f"unavailable: {why}"))
+
+
+def variants():
+    """The variant registry: each traversal's code, source, function and what it reads; the programs;
+    the defaults (the library's on a GPU and a CPU, the paper's)."""
+    from ..device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, INTERSECTIONS, ISECT_FUNCTIONS,
+                                   LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, registry_rows)
+    rows = registry_rows()
+    table = Table(title="traversals (--traversal; rtlab/device/variants.py)")
+    for col in rows[0]:
+        table.add_column(col)
+    for r in rows:
+        table.add_row(*(escape(str(v)) for v in r.values()))
+    console.print(table)
+    console.print("triangle tests (--isect; kernels/shared/rt_intersect.h): " + ", ".join(
+        f"{name} (RT_ISECT {code}, {ISECT_FUNCTIONS[name]})" for name, code in INTERSECTIONS.items()))
+    console.print("programs (kernels/cuda/NAME.cu, kernels/opencl/NAME.cl): " + ", ".join(
+        f"{purpose}: library {LIBRARY_PROGRAMS.get(purpose, '-')}, lab {LAB_PROGRAMS[purpose]}"
+        for purpose in LAB_PROGRAMS))
+    for what, v in (("GPU default", GPU_DEFAULT_VARIANT), ("CPU default", CPU_DEFAULT_VARIANT),
+                    ("the paper's (labs, paper benches)", PAPER_VARIANT)):
+        console.print(f"{what}: {v.label()}")
 
 
 def scenes():
@@ -82,6 +104,7 @@ def inspect(scene: str = typer.Argument("default", help="preset name, 'default' 
 
 def register(app: typer.Typer) -> None:
     app.command()(info)
+    app.command()(variants)
     app.command()(scenes)
     app.command()(build)
     app.command("inspect")(inspect)

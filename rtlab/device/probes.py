@@ -1,8 +1,8 @@
 """Probes for tests and tools: the kernels' own spawn and shadow-ray functions (rt_whitted.h) on
-arbitrary hits, through the probe kernels of lab steps 04 and 05 (probe_shadow, probe_secondary,
-probe_refract). They answer what the shading kernels would do with a hit, without a render. And the
-brute force in the kernels' own arithmetic (lab step 02's trace_rays_loop), which every traversal must
-match exactly.
+arbitrary hits, through the library's probe kernels (probe_shadow, probe_secondary, probe_refract in
+library_shadows and library_bounces). They answer what the shading kernels would do with a hit, without
+a render. And the brute force in the kernels' own arithmetic (trace_rays_loop, rt_entry_loop.h), which
+every traversal must match exactly.
 """
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from ..backends import get_backend
 from ..errors import RtlabError
 from ..kernel_constants import kernel_constant
 from ..scene.model import Scene
-from .kernels import SceneFeatures, Variant, build_defines, kernel_source, load_program
+from .kernels import SceneFeatures, build_defines, kernel_source, load_program
 from .layout import float4_rows
 from .scene import device_scene
-from .tracing import TraceResult, resolve_variant, unpack_hits
-from .whitted import SHADOWS_STEP, TREE_STEP
+from .tracing import TraceResult, unpack_hits
+from .variants import Variant, program_for, resolve_variant
 
 SECONDARY_KINDS = {"reflection": int(kernel_constant("RT_RAY_REFLECTION")),
                    "refraction": int(kernel_constant("RT_RAY_REFRACTION"))}
@@ -31,12 +31,12 @@ def hit_records(t, tri, u, v) -> np.ndarray:
     return rec
 
 
-def _probe_program(scene: Scene, backend, step: str, variant: Variant | None):
+def _probe_program(scene: Scene, backend, purpose: str, variant: Variant | None):
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
     variant = resolve_variant(variant, backend)
     ds = device_scene(scene, backend)
-    program = load_program(backend, step, variant, ds.features(variant))
+    program = load_program(backend, program_for(purpose, variant), variant, ds.features(variant))
     ds.set_constants(program, None, variant)
     return backend, program, ds.scene_args(variant)
 
@@ -45,7 +45,7 @@ def probe_shadow_rays(scene: Scene, backend, directions, hits: TraceResult, targ
                       variant: Variant | None = None) -> np.ndarray:
     """(N,) bool: whether the shadow ray of rtlab's shading (light_visible) from each hit of rays
     with the given directions reaches the target point. Misses count as visible."""
-    backend, program, args = _probe_program(scene, backend, SHADOWS_STEP, variant)
+    backend, program, args = _probe_program(scene, backend, "shadows", variant)
     n = len(hits.tri)
     if n == 0:
         return np.zeros(0, bool)
@@ -63,7 +63,7 @@ def probe_secondary_rays(scene: Scene, backend, directions, hits: TraceResult, k
     child's closest hit). Weight 0 and tri NO_RAY where none is spawned."""
     if kind not in SECONDARY_KINDS:
         raise RtlabError(f"kind must be 'reflection' or 'refraction', not {kind!r}")
-    backend, program, args = _probe_program(scene, backend, TREE_STEP, variant)
+    backend, program, args = _probe_program(scene, backend, "bounces", variant)
     n = len(hits.tri)
     bufs = [backend.to_device(float4_rows(directions)), backend.to_device(hit_records(hits.t, hits.tri, hits.u, hits.v))]
     outs = [backend.empty(16 * n) for _ in range(3)]
@@ -80,7 +80,9 @@ def probe_refraction(backend, directions, normals, ior, front) -> tuple[np.ndarr
     directions and reflectance 1 under total internal reflection."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend)
-    program = backend.compile(kernel_source(TREE_STEP, backend.language), build_defines(Variant(), SceneFeatures()))
+    variant = resolve_variant(None, backend)
+    program = backend.compile(kernel_source(program_for("bounces", variant), backend.language),
+                              build_defines(variant, SceneFeatures()))
     n = len(directions)
     d = float4_rows(directions, np.broadcast_to(np.asarray(front, np.float32), (n,)))
     nrm = float4_rows(normals, np.broadcast_to(np.asarray(ior, np.float32), (n,)))
@@ -88,9 +90,6 @@ def probe_refraction(backend, directions, normals, ior, front) -> tuple[np.ndarr
     program.launch("probe_refract", (n,), PROBE_BLOCK, [backend.to_device(d), backend.to_device(nrm), out, np.int32(n)])
     res = backend.to_host(out, np.float32, 4 * n).reshape(n, 4)
     return res[:, :3], res[:, 3]
-
-
-BRUTE_FORCE_STEP = "02_intersect"
 
 
 def probe_brute_force(scene: Scene, backend, origins, directions, variant: Variant | str | None = None,
@@ -103,7 +102,7 @@ def probe_brute_force(scene: Scene, backend, origins, directions, variant: Varia
         backend = get_backend(backend)
     variant = resolve_variant(variant, backend).with_(traversal="stack", node_memory="global")
     ds = device_scene(scene, backend)
-    program = load_program(backend, BRUTE_FORCE_STEP, variant, ds.features(variant))
+    program = load_program(backend, program_for("loop", variant), variant, ds.features(variant))
     ds.set_constants(program, None, variant)
     o = np.asarray(origins, np.float32)
     d = np.asarray(directions, np.float32)

@@ -8,10 +8,11 @@ import numpy as np
 
 from ..backends import get_backend
 from ..scene.model import Scene
-from .kernels import Variant, load_program, primary_step, rays_per_work_item
+from .kernels import load_program, rays_per_work_item
 from .layout import HIT_DTYPE
 from .scene import device_scene
-from .tracing import TraceResult, require_scene, resolve_variant, unpack_hits
+from .tracing import TraceResult, require_scene, unpack_hits
+from .variants import Variant, program_for, resolve_variant
 
 
 @dataclass
@@ -36,16 +37,19 @@ class RenderResult:
 
 
 def render(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
-           repeats: int = 1, warmup: int = 0, write_hits: bool = False, device: str | None = None) -> RenderResult:
+           repeats: int = 1, warmup: int = 0, write_hits: bool = False, device: str | None = None,
+           lab: bool = False) -> RenderResult:
     """Render the scene's camera view. Times ``repeats`` launches after ``warmup`` untimed ones.
-    ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
+    ``variant`` None: rtlab.device.variants.default_variant(backend); parts a Variant leaves out (None)
+    come from it. ``lab``: the lab steps' kernels for the variant instead of the library's."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
     variant = resolve_variant(variant, backend)
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)
-    program = load_program(backend, primary_step(variant), variant, ds.features(variant), RT_WRITE_HITS=int(write_hits))
+    program = load_program(backend, program_for("trace", variant, lab), variant, ds.features(variant),
+                           RT_WRITE_HITS=int(write_hits))
     ds.set_constants(program, camera, variant)
     n = camera.width * camera.height
     pixels = backend.empty(n * 4)

@@ -24,6 +24,7 @@ from ..accel.tri_data import plucker_tri_data, wald_tri_data
 from ..scene.materials import AMBIENT, BACKGROUND
 from ..scene.model import Camera, Scene, scene_fingerprint
 from .kernels import PACKET_LANES, SceneFeatures
+from .variants import TRAVERSAL_SPECS
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
 
 DUMMY_F4 = np.zeros((1, 4), np.float32)
@@ -86,18 +87,17 @@ def bvh4_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
 
 
-# family -> builder(scene, kd_tree) -> AccelArrays; a traversal's family is its name but where
-# ACCEL_FAMILIES names another (traversals that read one structure share its upload); every
-# traversal not listed reads the kd-tree as built (kd_accel)
+# family -> builder(scene, kd_tree) -> AccelArrays; a traversal's family is the structure the variant
+# registry names (traversals that read one structure share its upload); "kd", the kd-tree as built
+# (kd_accel), is every other
 ACCEL_BUILDERS = {"ropes": ropes_accel, "bvh": bvh_accel, "cpu-bvh": cpu_bvh_accel, "bvh8": bvh8_accel,
                   "bvh4": bvh4_accel}
-ACCEL_FAMILIES = {"bvh-packet": "cpu-bvh", "bvh-wide": "cpu-bvh"}
 KD_FAMILIES = ("kd", "ropes")                 # the families built on the kd-tree
 
 
 def accel_family(traversal: str) -> str:
     """The acceleration structure ``traversal`` reads: an ACCEL_BUILDERS key, or "kd"."""
-    family = ACCEL_FAMILIES.get(traversal, traversal)
+    family = TRAVERSAL_SPECS[traversal].structure
     return family if family in ACCEL_BUILDERS else "kd"
 # intersection test name -> builder(scene) -> (R F, 4) float32 rows precomputed per triangle; a test
 # not listed reads the vertices and gets a dummy element

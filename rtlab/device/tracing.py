@@ -13,48 +13,36 @@ import numpy as np
 from ..backends import get_backend
 from ..errors import RtlabError, VariantError
 from ..scene.model import Scene
-from .kernels import (DEFAULT_PRIMARY_STEP, INTERSECTIONS, TRACE_THREADS, TRAVERSALS, Variant, load_program,
-                      primary_step, rays_per_work_item)
+from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .scene import device_scene
+from .variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, SCALAR_CPU_VARIANT, Variant,  # noqa: F401
+                       default_variant, program_for, resolve_variant)
 
 TRACE_BLOCK = TRACE_THREADS    # threads a block of trace_rays (a profiler may sweep it)
 # Directions whose largest component lies outside this range are scaled by a power of two into
 # [1, 2) before tracing (_scaled_directions): below it their squares underflow (a length of 1e-19
 # read as a zero direction), above it products with coordinates overflow.
 DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
-# What trace(), render() and render_whitted() run when no variant is named (default_variant): the
-# watertight test (Woop et al. 2013) and its conservative traversal, which let no ray through shared
-# edges and vertices. Moller-Trumbore, the paper's test and Variant()'s, let 13-24 % of the rays aimed
-# at edges and vertices of the benchmark views through (docs/benchmarks.md, issue 13). On a GPU the
+# What trace(), render() and render_whitted() run when no variant is named (rtlab.device.variants
+# .default_variant; a Variant() leaves its traversal, test and block to it too): the watertight test
+# (Woop et al. 2013) and its conservative traversal, which let no ray through shared edges and
+# vertices. Moller-Trumbore, the paper's test (Variant.paper()), lets 13-24 % of the rays aimed at edges
+# and vertices of the benchmark views through (docs/benchmarks.md). On a GPU (GPU_DEFAULT_VARIANT) the
 # BVH in 8x16 blocks: twice the kd stack's rays per second on most benchmark views, and tile-shaped
-# warps trace indoor views 18-19 % faster than 32x4 rows (H100, docs/benchmarks.md, issue 12). On a
-# CPU (PoCL) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones (directions of
-# one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH together in
-# SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same tree, a
-# node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch
-# that mixes both is traced each part its way. Against Embree's single thread on the six benchmark
-# views, same rays, 2 cores (docs/benchmarks.md, `rtlab bench cpu`): 2.3-4.7x on camera rays and
-# 1.0-1.8x on diffuse rays with both cores (per core 1.6-2.5x and 0.8-1.0x); the kd stack traversal,
-# the CPU default before, ran at 0.35-0.63x and 0.20-0.32x per core. The lab steps and the paper's
-# benches name their variants and keep the paper's.
-DEFAULT_VARIANT = Variant(traversal="bvh-packet", intersection="watertight")
-GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
-
-
-# Where the kernel tree in use has no lane form of the watertight test (a student release stubs it: it
-# would show lab 02's solution), the CPU default is the scalar test on the kd stack traversal.
-SCALAR_CPU_VARIANT = Variant(traversal="stack", intersection="watertight")
-
-
-def default_variant(backend) -> Variant:
-    """The variant the library runs on ``backend`` when none is named: GPU_DEFAULT_VARIANT on a GPU,
-    DEFAULT_VARIANT (the CPU's packet traversal) on any other device, SCALAR_CPU_VARIANT there in a
-    student tree."""
-    from ..paths import tree_has_stubs
-    if backend.is_gpu():
-        return GPU_DEFAULT_VARIANT
-    return SCALAR_CPU_VARIANT if tree_has_stubs("shared/rt_intersect_lanes.h") else DEFAULT_VARIANT
+# warps trace indoor views 18-19 % faster than 32x4 rows (H100, docs/benchmarks.md). On a CPU (PoCL,
+# CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones
+# (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH
+# together in SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same
+# tree, a node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a
+# batch that mixes both is traced each part its way. Against Embree's single thread on the six
+# benchmark views, same rays, 2 cores (docs/benchmarks.md, `rtlab bench cpu`): 2.3-4.7x on camera rays
+# and 1.0-1.8x on diffuse rays with both cores (per core 1.6-2.5x and 0.8-1.0x); the kd stack
+# traversal, the CPU default before, ran at 0.35-0.63x and 0.20-0.32x per core. Where the kernel tree
+# in use has no lane form of the watertight test (a student release stubs it: it would show lab 02's
+# solution), the CPU default is the scalar test on the kd stack (SCALAR_CPU_VARIANT). The lab steps and
+# the paper's benches name their variants and keep the paper's.
+DEFAULT_VARIANT = CPU_DEFAULT_VARIANT
 
 
 @dataclass
@@ -100,31 +88,6 @@ def require_scene(scene, what: str = "scene") -> Scene:
 def _short_repr(value) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
-
-
-def resolve_variant(variant, backend) -> Variant:
-    """The variant to run: ``variant`` itself, default_variant(backend) for None, or for a string the
-    default with the named parts replaced: a traversal ("bvh"), a triangle test ("moller"), or both
-    as "traversal/test" ("stack/watertight"), so a name never silently changes the triangle test."""
-    if variant is None:
-        return default_variant(backend)
-    if isinstance(variant, Variant):
-        return variant
-    if not isinstance(variant, str):
-        raise VariantError(f"variant must be an rtlab Variant or a name such as 'bvh' or 'stack/moller', got "
-                           f"{type(variant).__name__} {_short_repr(variant)}")
-    parts = [p.strip().lower() for p in variant.split("/") if p.strip()]
-    if not parts or len(parts) > 2:
-        raise VariantError(f"variant {variant!r}: name a traversal, a triangle test or 'traversal/test' "
-                           f"(traversals: {', '.join(TRAVERSALS)}; tests: {', '.join(INTERSECTIONS)})")
-    chosen = {}
-    for part in parts:
-        key = "traversal" if part in TRAVERSALS else "intersection" if part in INTERSECTIONS else None
-        if key is None or key in chosen:
-            raise VariantError(f"variant {variant!r}: {part!r} is not a traversal ({', '.join(TRAVERSALS)}) or a "
-                               f"triangle test ({', '.join(INTERSECTIONS)}){' (named twice)' if key else ''}")
-        chosen[key] = part
-    return default_variant(backend).with_(**chosen)
 
 
 def _real_array(a, name: str) -> np.ndarray:
@@ -252,7 +215,7 @@ def ray_buffers(backend, n: int):
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | str | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
           defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,
-          warmup: int = 0, width: int | None = None) -> TraceResult:
+          warmup: int = 0, width: int | None = None, lab: bool = False) -> TraceResult:
     """Closest hit along each ray o + t d within (tmin, tmax), t in units of |d| (d need not be
     normalised: any finite, non-zero length works). At exactly equal t the lowest triangle id
     wins, in every traversal and triangle test (as in the float64 reference): every traversal culls a
@@ -272,8 +235,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     NaN/Inf components or a zero direction are reported as misses; a finite origin beyond float32's
     range is an error. ``tmin``, ``tmax``: numbers or one per ray; tmin finite and >= 0, tmax >= tmin
     (numpy.inf: no limit); None, NaN or a reversed interval is a RtlabError naming the ray.
-    ``variant`` None: default_variant(backend) (watertight; the BVH on a GPU); a Variant keeps its own
-    test and traversal; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
+    ``variant`` None: default_variant(backend) (watertight; the BVH on a GPU); a Variant keeps what it
+    names and takes what it leaves out (None) from that default; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
     and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
@@ -282,7 +245,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
     order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
     A packet traversal ("bvh-packet", the CPU default) takes consecutive rays anyway, a row segment of
-    such an image. The hits are the same either way."""
+    such an image. The hits are the same either way. ``lab``: run the lab steps' kernels for the variant
+    (rtlab.device.variants.program_for) instead of the library's: the grader, the paper's benches."""
     scene = require_scene(scene)
     origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")
     if origins.shape != directions.shape:
@@ -301,7 +265,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     features = ds.features(variant)
     if features.stack_size < min_stack_size:
         features = replace(features, stack_size=int(min_stack_size))
-    program = load_program(backend, primary_step(variant), variant, features, **(defines or {}))
+    name = program_for("trace", variant, lab)
+    program = load_program(backend, name, variant, features, trace_threads=TRACE_BLOCK, **(defines or {}))
     ds.set_constants(program, None, variant)
     o_buf, d_buf, h_buf = ray_buffers(backend, n)
     backend.fill(o_buf, float4_rows(origins, lo * scale))
@@ -310,7 +275,10 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     items = -(-n // lanes)                     # the pixels of a row segment when the rays are an image
     if width is not None and (int(width) <= 0 or n % int(width)):
         raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
-    launch = _grid_launch(program, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width and lanes == 1 else \
+    if program.defines.get("RT_TRACE_THREADS") != TRACE_BLOCK:    # it sizes the kernel's block-wide ray array
+        raise RtlabError(f"{name} was compiled for trace_rays blocks of {program.defines.get('RT_TRACE_THREADS')} "
+                         f"threads, launched with {TRACE_BLOCK}")
+    launch = _grid_launch(program, name, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width and lanes == 1 else \
         (lambda: program.launch("trace_rays", (items,), (TRACE_BLOCK,),
                                 ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
@@ -319,14 +287,17 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
 
 
-def _grid_launch(program, ds, variant: Variant, n: int, width: int, buffers):
+GRID_PROGRAMS = ("library_trace", "00_primary")     # the programs that hold trace_ray_grid
+
+
+def _grid_launch(program, name: str, ds, variant: Variant, n: int, width: int, buffers):
     """The launch of trace_ray_grid over rays laid out as rows of ``width`` (trace's ``width``)."""
     width = int(width)
     if width <= 0 or n % width:
         raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
-    if primary_step(variant) != DEFAULT_PRIMARY_STEP:
-        raise RtlabError(f"width= needs lab step {DEFAULT_PRIMARY_STEP}'s kernels; {variant.label()} runs in "
-                         f"{primary_step(variant)}'s, which trace a plain list of rays")
+    if name not in GRID_PROGRAMS:
+        raise RtlabError(f"width= needs the kernels of {' or '.join(GRID_PROGRAMS)}; {variant.label()} runs in "
+                         f"{name}'s, which trace a plain list of rays")
     height = n // width
     args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
     return lambda: program.launch("trace_ray_grid", (width, height), variant.block, args, constants=("frame",))

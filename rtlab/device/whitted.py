@@ -4,11 +4,11 @@ reflection/refraction as a kernel tree (§3.2.2, lab step 05), with kernels spec
     result = render_whitted(scene, "opencl", shadows="two-pass", bounces=3)
     result.image, result.frame_ms, result.launches, result.resources
 
-Bounces 0 runs lab step 04: ``one-pass`` is one kernel (primary ray, shadow rays, shading);
+Bounces 0 runs the shadow kernels (the library's library_shadows; lab step 04's with ``lab=True``): ``one-pass`` is one kernel (primary ray, shadow rays, shading);
 ``two-pass`` is a primary kernel writing hit records to a global buffer and a shading kernel that
 traces the shadow rays; ``none`` is the one-pass kernel compiled without shadow rays.
 
-Bounces >= 1 runs lab step 05, the paper's kernel tree: the primary kernel is the root; every node
+Bounces >= 1 runs the paper's kernel tree (library_bounces; lab step 05's with ``lab=True``): the primary kernel is the root; every node
 below is one launch of the reflection or the refraction kernel over the rays of the level above,
 visited depth-first, so one set of ray buffers per level -- max bounces + 1 -- is alive at once
 (rtlab.device.whitted_frames). Each ray carries a weight; each node adds weight x colour to a float4
@@ -38,13 +38,14 @@ import numpy as np
 from ..backends import get_backend
 from ..errors import RtlabError
 from ..scene.model import Scene
-from .kernels import SceneFeatures, Variant, load_program
+from .kernels import SceneFeatures, load_program
 from .scene import device_scene
-from .tracing import TraceResult, require_scene, resolve_variant
+from .tracing import TraceResult, require_scene
+from .variants import LAB_PROGRAMS, Variant, program_for, resolve_variant
 from .whitted_frames import FRAME_RUNNERS, NO_RAY, Launch  # noqa: F401  (NO_RAY: in a result's tree)
 
-SHADOWS_STEP = "04_shadows"
-TREE_STEP = "05_kernel_tree"
+SHADOWS_STEP = LAB_PROGRAMS["shadows"]       # the lab steps of the shadow kernels and the kernel tree
+TREE_STEP = LAB_PROGRAMS["bounces"]
 SHADOW_MODES = ("one-pass", "two-pass", "none")
 SCHEDULES = ("tree", "wavefront")             # the paper's depth-first kernel tree; level by level
 FRESNEL_MODES = {"schlick": 1, "fixed": 0}   # RT_FRESNEL
@@ -59,7 +60,7 @@ class WhittedResult:
     launches: list[Launch]               # the last frame's launches, in order
     resources: dict                      # kernel -> KernelResources.as_dict()
     defines: dict
-    step: str
+    step: str                            # the program that ran (library_shadows, 05_kernel_tree...)
     shadows: str
     bounces: int                         # asked for
     depth: int                           # compiled RT_MAX_DEPTH (kernel-tree levels below the root)
@@ -119,17 +120,18 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
                    shadows: str = "one-pass", bounces: int = 0, compact: bool = False, repeats: int = 1,
                    warmup: int = 0, write_hits: bool = False, fresnel: str = "schlick",
                    specialise: bool = True, device: str | None = None, schedule: str = "tree",
-                   defines: dict | None = None) -> WhittedResult:
+                   defines: dict | None = None, lab: bool = False) -> WhittedResult:
     """Render the scene's camera view with shadows and ``bounces`` levels of reflection/refraction
     (see the module docstring). Times ``repeats`` frames after ``warmup`` untimed ones. ``defines``
-    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None: rtlab.device.tracing.default_variant(backend)."""
+    adds or overrides -D switches (e.g. RT_CONSERVATIVE). ``variant`` None:
+    rtlab.device.variants.default_variant(backend); parts a Variant leaves out (None) come from it.
+    ``lab``: lab step 04's or 05's kernels instead of the library's."""
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
     variant = resolve_variant(variant, backend)
-    if variant.traversal == "packet":
-        raise RtlabError("the packet traversal has no shadow or secondary-ray kernels (its shared stack lives in "
-                         "lab step 03's entry kernels); choose a single-ray traversal")
+    tree = bounces > 0 or schedule == "wavefront"
+    step = program_for("bounces" if tree else "shadows", variant, lab)
     camera = scene.camera if size is None else scene.camera.with_size(size)
     if len(scene.lights) > MAX_LIGHTS:
         raise RtlabError(f"scene {scene.name!r} has {len(scene.lights)} lights; the shading kernels take at most {MAX_LIGHTS}")
@@ -138,8 +140,6 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     if not specialise:
         features = features.general()
     wavefront = schedule == "wavefront"
-    tree = bounces > 0 or wavefront
-    step = TREE_STEP if tree else SHADOWS_STEP
     extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree, schedule)
     extra.update(defines or {})
     program = load_program(backend, step, variant, features, **extra)

@@ -108,12 +108,14 @@ def work_budget_problem(counts, reference, budget: float) -> str | None:
 
 
 def spec_variant(spec):
-    from ...device.kernels import Variant
+    """A test's variant: the paper's (kd stack, Moller-Trumbore, 32x4), as the labs are, with what the
+    test names replaced."""
+    from ...device.variants import Variant
     p = spec.params
     kw = {k: p[k] for k in ("traversal", "intersection", "node_memory", "constants", "ray_memory") if p.get(k)}
     if p.get("block"):
         kw["block"] = tuple(p["block"])
-    return Variant(**kw)
+    return Variant.paper(**kw)
 
 
 def vec_text(a) -> str:
@@ -188,7 +190,7 @@ def ray_namer(origins, directions):
 
 
 def primary_step_of(variant) -> str:
-    """The kernel pair render() and trace() compile for this variant (packet traversal has its own)."""
+    """The lab step whose kernels render(..., lab=True) and trace(..., lab=True) compile for this variant."""
     from ...device.kernels import primary_step
     return primary_step(variant)
 

@@ -74,7 +74,7 @@ class TraceRaysKind(Kind):
 
         def traced(count: int):
             return trace(inputs["scene"], o[:count], d[:count], backend=backend, variant=variant, tmin=p["tmin"],
-                         tmax=p["tmax"])
+                         tmax=p["tmax"], lab=True)
 
         if variant.count_work:
             probe = work_probe(ds, lambda: traced(PROBE_RAYS), PROBE_RAYS, request)
@@ -168,12 +168,12 @@ class RenderKind(Kind):
         scene = camera_scene(inputs["scene"], request)
         if variant.count_work:
             small = replace(scene, camera=scene.camera.with_size(*PROBE_IMAGE))
-            probe = work_probe(device_scene_of(scene, backend), lambda: render(small, backend, variant, write_hits=True),
+            probe = work_probe(device_scene_of(scene, backend), lambda: render(small, backend, variant, write_hits=True, lab=True),
                                PROBE_IMAGE[0] * PROBE_IMAGE[1] + 64 * 64, request)
             if probe is not None:
                 return probe
             device_scene_of(scene, backend).reserve_work_counters((scene.camera.width + 64) * (scene.camera.height + 64))
-        r = render(scene, fresh_outputs(backend, request), variant, write_hits=True)
+        r = render(scene, fresh_outputs(backend, request), variant, write_hits=True, lab=True)
         arrays = {"image": r.image, "t": r.hits.t, "tri": r.hits.tri, "u": r.hits.u, "v": r.hits.v}
         return Produced(arrays, {"kernel_ms": float(r.kernel_ms[0])})
 

@@ -159,7 +159,7 @@ class PlacementKind(RenderKind):
         from ...device.rendering import render
         spec, inputs, backend, variant = state
         got = super().produce(state, request)
-        base = render(inputs["scene"], backend, self.global_variant(variant), write_hits=True)
+        base = render(inputs["scene"], backend, self.global_variant(variant), write_hits=True, lab=True)
         got.arrays.update({"global_image": base.image, "global_t": base.hits.t, "global_tri": base.hits.tri})
         return got
 

@@ -46,7 +46,7 @@ class WhittedKind(Kind):
         p = spec.params
         r = render_whitted(camera_scene(inputs["scene"], request), fresh_outputs(backend, request), variant,
                            shadows=p["shadows"], bounces=int(p["bounces"]), compact=bool(p["compact"]),
-                           fresnel=p["fresnel"], write_hits=True)
+                           fresnel=p["fresnel"], write_hits=True, lab=True)
         tree = r.tree if r.tree is not None else {"P": r.hits.tri}
         return Produced({"image": r.image, **{f"tree_{node}": np.asarray(ids, np.int32) for node, ids in tree.items()}},
                         {"kernel_ms": float(r.frame_ms[0])})

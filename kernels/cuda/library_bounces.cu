@@ -1,0 +1,11 @@
+// The library's Whitted frames with reflection and refraction (rtlab.device.whitted.render_whitted,
+// bounces >= 1): the paper's kernel tree or the wavefront schedule, and the secondary-ray probes. Not
+// a lab step: the same entry kernels as lab step 05's (kernels/shared/rt_entry_bounces.h). CUDA: the
+// constant-memory symbols the kernels read.
+#include "rt_types.h"
+
+__constant__ RtFrame c_frame;
+__constant__ RtLight c_lights[RT_MAX_LIGHTS];
+__constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
+
+#include "rt_entry_bounces.h"    // the tree's (or the wavefront's) kernels, pack_frame, probes

@@ -1,0 +1,13 @@
+// The library's closest hits and primary rays (rtlab.trace, rtlab.render, the brute-force probe):
+// every traversal, triangle test and node placement of the variant registry (rtlab/device/variants.py).
+// Not a lab step: the same entry kernels as the labs' (kernels/shared/rt_entry_*.h), so a change to a
+// lab file never changes the library. CUDA: the constant-memory symbols the kernels read.
+#include "rt_types.h"
+
+__constant__ RtFrame c_frame;
+__constant__ RtLight c_lights[RT_MAX_LIGHTS];
+__constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
+
+#include "rt_entry_trace.h"      // trace_rays, render_primary
+#include "rt_entry_ray_grid.h"   // trace_ray_grid
+#include "rt_entry_loop.h"       // trace_rays_loop (and intersect_triangles)

@@ -1,0 +1,34 @@
+/* rt_entry_ray_grid.h - closest hits of rays laid out as an image, width x height row-major
+ * (rtlab.trace(..., width=)): a 2-D launch whose blocks take tiles of it in launch_pixel's order, as
+ * render_primary's do, so a warp traces neighbouring rays. With the kd packet one tile is one packet.
+ * (bvh-packet takes consecutive rays, a row segment, through trace_rays: the host launches that.)
+ */
+#ifndef RT_ENTRY_RAY_GRID_H
+#define RT_ENTRY_RAY_GRID_H
+#define RT_PACKET_KERNELS 1
+#include "rt_primary.h"
+
+RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
+                              int width, int height RT_WITH_FRAME)
+{
+    int x, y;
+    launch_pixel(&x, &y);
+#if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+    /* Threads outside the image still take part in the packet's barriers */
+    RT_SHARED KdPacketShared packet;
+    int valid = x < width && y < height;
+    int i = valid ? y * width + x : 0;
+    Hit hit = trace_one_packet(RT_SCENE_ARGS, rt_frame, rt_load_once(&origins[i]), rt_load_once(&directions[i]), valid,
+                               &packet, rt_local_id(1) * rt_local_size(0) + rt_local_id(0));
+    if (valid)
+        rt_store_once(&hits[i], pack_hit(hit));
+#else
+    if (x >= width || y >= height)
+        return;
+    int i = y * width + x;
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, rt_frame, rt_load_once(&origins[i]),
+                                               rt_load_once(&directions[i]))));
+#endif
+}
+
+#endif /* RT_ENTRY_RAY_GRID_H */

@@ -1,0 +1,98 @@
+/* rt_entry_trace.h - the entry kernels of closest hits and primary rays, written once for CUDA and
+ * OpenCL (the kernel-side macros of rt_port.h):
+ *   trace_rays      closest hit of arbitrary rays: origins (x, y, z, tmin), directions (x, y, z, tmax)
+ *   render_primary  one thread a pixel, simple shading (the paper's Table 4 setting)
+ * Every traversal runs through them: one ray a thread; the kd packet (one block a packet, its stack
+ * in block-wide memory, rt_packet.h); bvh-packet (RT_LANES rays a work-item, rt_bvh_packet.h). A
+ * program includes this after declaring its constant memory (the library's library_trace, lab
+ * steps 00, 01, 03). With RT_RAY_MEM == RT_MEM_SHARED the ray goes through the block's shared
+ * memory (§3.1.1): CUDA only, through lab step 01's place_ray_shared, which its .cu defines first.
+ */
+#ifndef RT_ENTRY_TRACE_H
+#define RT_ENTRY_TRACE_H
+/* the packet traversal's block-wide stack is declared here (rt_traverse.h refuses it elsewhere) */
+#define RT_PACKET_KERNELS 1
+#include "rt_primary.h"
+
+#if RT_RAY_MEM == RT_MEM_SHARED
+#ifndef RT_PLACE_RAY_SHARED
+#error "RT_RAY_MEM == RT_MEM_SHARED needs place_ray_shared: lab step 01's CUDA kernels (01_memory.cu)"
+#endif
+#ifndef RT_BLOCK_THREADS
+#error "RT_RAY_MEM == RT_MEM_SHARED needs RT_BLOCK_THREADS, threads a render block (the loader sets it)"
+#endif
+#endif
+
+RT_KERNEL void trace_rays(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
+                          int n_rays RT_WITH_FRAME)
+{
+    int i = rt_global_id(0);
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    /* RT_LANES rays a work-item, traced together in SIMD lanes */
+    trace_packet(RT_SCENE_ARGS, rt_frame, origins, directions, hits, i * RT_LANES, n_rays);
+#elif RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+    /* Threads past the end still take part in the packet's barriers */
+    RT_SHARED KdPacketShared packet;
+    int valid = i < n_rays;
+    int j = valid ? i : 0;
+    Hit hit = trace_one_packet(RT_SCENE_ARGS, rt_frame, rt_load_once(&origins[j]), rt_load_once(&directions[j]), valid,
+                               &packet, rt_local_id(0));
+    if (valid)
+        rt_store_once(&hits[i], pack_hit(hit));
+#elif RT_RAY_MEM == RT_MEM_SHARED
+    /* One slot a thread of the block: no barrier */
+    RT_SHARED Ray s_rays[RT_TRACE_THREADS];
+    if (i >= n_rays)
+        return;
+    float4 o = rt_load_once(&origins[i]), d = rt_load_once(&directions[i]);
+    const Ray *ray = place_ray_shared(s_rays, rt_local_id(0), make_ray(xyz(o), xyz(d), o.w, d.w));
+    rt_store_once(&hits[i], pack_hit(closest_hit(RT_SCENE_ARGS, rt_frame, ray)));
+#else
+    if (i >= n_rays)
+        return;
+    rt_store_once(&hits[i], pack_hit(trace_one(RT_SCENE_ARGS, rt_frame, rt_load_once(&origins[i]),
+                                               rt_load_once(&directions[i]))));
+#endif
+}
+
+/* The block shape is the launch's (the paper's Fig. 4 studies it); launch_pixel maps threads to
+ * pixels (RT_RAY_ORDER). With the kd packet one block is one packet of rays. */
+RT_KERNEL void render_primary(RT_SCENE_PARAMS, RT_OUT(unsigned int) pixels, RT_OUT(float4) hits RT_WITH_SHADING)
+{
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+    /* RT_LANES pixels of a row a work-item, traced together in SIMD lanes */
+    render_packet(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, rt_global_id(0) * RT_LANES, rt_global_id(1),
+                  pixels, hits);
+#else
+    int x, y;
+    launch_pixel(&x, &y);
+    Hit hit;
+#if RT_TRAVERSAL == RT_TRAVERSAL_PACKET
+    /* Threads outside the frame still take part in the packet's barriers */
+    RT_SHARED KdPacketShared packet;
+    int valid = x < rt_frame->width && y < rt_frame->height;
+    unsigned int rgba = render_pixel_packet(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, x, y, valid, &packet,
+                                            rt_local_id(1) * rt_local_size(0) + rt_local_id(0), &hit);
+    if (!valid)
+        return;
+#elif RT_RAY_MEM == RT_MEM_SHARED
+    RT_SHARED Ray s_rays[RT_BLOCK_THREADS];
+    if (x >= rt_frame->width || y >= rt_frame->height)
+        return;
+    const Ray *ray = place_ray_shared(s_rays, rt_local_id(1) * rt_local_size(0) + rt_local_id(0),
+                                      camera_ray(rt_frame, x, y));
+    unsigned int rgba = render_ray(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, ray, &hit);
+#else
+    if (x >= rt_frame->width || y >= rt_frame->height)
+        return;
+    unsigned int rgba = render_pixel(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, x, y, &hit);
+#endif
+    int i = y * rt_frame->width + x;
+    pixels[i] = rgba;
+#if RT_WRITE_HITS
+    hits[i] = pack_hit(hit);
+#endif
+#endif
+}
+
+#endif /* RT_ENTRY_TRACE_H */
