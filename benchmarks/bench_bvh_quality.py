@@ -65,7 +65,7 @@ def trace_with(batch, bvh: Bvh, backend):
     from rtlab.device.tracing import trace
     ds = device_scene(batch.scene, backend)
     use_bvh(ds, bvh)
-    return trace(batch.scene, batch.origins, batch.directions, backend, Variant("bvh"), min_stack_size=STACK)
+    return trace(batch.scene, batch.origins, batch.directions, backend, Variant.paper(traversal="bvh"), min_stack_size=STACK)
 
 
 def differ_vs_reference(batch, got, rays) -> str:

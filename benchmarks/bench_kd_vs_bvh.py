@@ -49,8 +49,8 @@ def bench_scene(name: str, size: int, repeats: int, backend) -> list[str]:
     for label, tree in trees.items():
         copy = Scene(**vars(scene))
         device_scene(copy, backend, tree)
-        runs[label] = (copy, Variant(traversal="stack"))
-    runs["bvh"] = (Scene(**vars(scene)), Variant(traversal="bvh"))
+        runs[label] = (copy, Variant.paper(traversal="stack"))
+    runs["bvh"] = (Scene(**vars(scene)), Variant.paper(traversal="bvh"))
     times = {label: [] for label in runs}
     images = {}
     for _ in range(repeats):

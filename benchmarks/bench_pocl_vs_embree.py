@@ -31,7 +31,7 @@ def child(args) -> int:
     rows = []
     for view in args.views.split(","):
         batch = make_rays(view, "primary", args.size)
-        row = bench_cpu(batch, backend, Variant(traversal=args.traversal), args.rounds,
+        row = bench_cpu(batch, backend, Variant.paper(traversal=args.traversal), args.rounds,
                         EmbreeTracer(batch.scene.vertices, batch.scene.faces))
         d = asdict(row)
         d.update(rtlab_mrays=row.rtlab_mrays, embree_mrays=row.embree_mrays, ratio=row.ratio,

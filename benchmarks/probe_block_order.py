@@ -32,7 +32,7 @@ for view in a.views.split(","):
             for shape in a.shapes.split(","):
                 dims, _, order = shape.partition(":")
                 bx, by = (int(v) for v in dims.split("x"))
-                v = Variant(traversal=trav, block=(bx, by), ray_order=order or "rows")
+                v = Variant.paper(traversal=trav, block=(bx, by), ray_order=order or "rows")
                 r = render(scene, be, v, repeats=a.repeats, warmup=3)
                 print(json.dumps({"view": view, "backend": be.name, "traversal": trav, "shape": shape,
                                   "mrays": round(r.mrays_per_s)}), flush=True)

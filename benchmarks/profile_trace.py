@@ -131,7 +131,7 @@ def sweep_case(batch, backends, a) -> list[dict]:
                 for cap in (int(c) for c in a.max_registers.split(",")):
                     if cap and be.name != "cuda":
                         continue
-                    variant = Variant(traversal=trav, max_registers=cap)
+                    variant = Variant.paper(traversal=trav, max_registers=cap)
                     for block in (int(b) for b in a.blocks.split(",")):
                         tracing.TRACE_BLOCK = block
                         res = trace(batch.scene, batch.origins, batch.directions, be, variant,
@@ -157,7 +157,7 @@ def run_case(batch, backends, a, out) -> list[dict]:
     rows = []
     for be in backends:
         for trav in a.traversals.split(","):
-            variant = Variant(traversal=trav)
+            variant = Variant.paper(traversal=trav)
             if a.ncu:
                 trace(batch.scene, batch.origins, batch.directions, be, variant, repeats=3)
                 continue

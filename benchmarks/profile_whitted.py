@@ -44,7 +44,7 @@ def parse_config(text: str):
             opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
         else:
             raise SystemExit(f"unknown option {p!r} in {text!r}")
-    return Variant(**kw), opts
+    return Variant.paper(**kw), opts
 
 
 def main():

@@ -63,7 +63,7 @@ for s in scenes:
 results = {}
 fig, axes = plt.subplots(len(scenes), 3, figsize=(9, 3 * len(scenes)), squeeze=False)
 for row, s in zip(axes, scenes):
-    r = rtlab.render(s, backend, rtlab.Variant(), write_hits=True, repeats=3, warmup=1)   # the paper's test
+    r = rtlab.render(s, backend, rtlab.Variant.paper(), write_hits=True, repeats=3, warmup=1, lab=True)   # the paper's variant
     report = check_render(s, r, s.camera)
     results[s.name] = (r, report)
     print(f"{s.name}: {r.median_ms:.2f} ms, {r.mrays_per_s:.2f} Mrays/s; {report.summary()}")
@@ -88,8 +88,8 @@ blocks = [(8, 8), (16, 8), (32, 2), (32, 4), (64, 2)]
 scene = scenes[-1]
 rows = []
 for b in blocks:
-    v = rtlab.Variant(block=b)
-    r = rtlab.render(scene, backend, v, write_hits=True, repeats=5, warmup=1)
+    v = rtlab.Variant.paper(block=b)
+    r = rtlab.render(scene, backend, v, write_hits=True, repeats=5, warmup=1, lab=True)
     rep = check_render(scene, r, scene.camera)
     rows.append((f"{b[0]}x{b[1]}", r.median_ms, rep.hits.n_mismatch, rep.psnr))
     print(f"block {b[0]:>2}x{b[1]}: {r.median_ms:7.2f} ms  mismatches {rep.hits.n_mismatch}  PSNR {rep.psnr:.1f} dB")

@@ -62,7 +62,8 @@ assert all(c.n_mismatch == 0 for _, c in loops.values())
 # %%
 renders = {}
 for isect in TESTS:
-    r = rtlab.render(scene, backend, rtlab.Variant(intersection=isect), write_hits=True, repeats=3, warmup=1)
+    r = rtlab.render(scene, backend, rtlab.Variant.paper(intersection=isect), write_hits=True, repeats=3, warmup=1,
+                     lab=True)
     renders[isect] = (r, check_render(scene, r, scene.camera))
     print(f"{isect:>10}: {r.median_ms:7.2f} ms  {r.mrays_per_s:6.2f} Mrays/s  {renders[isect][1].summary()}")
 

@@ -43,8 +43,8 @@ print(backend.describe(), "|", scene.name, "| traversals:", ", ".join(TRAVERSALS
 # %%
 rows = {}
 for name in TRAVERSALS:
-    v = rtlab.Variant(traversal=name)
-    r = rtlab.render(scene, backend, v, write_hits=True, repeats=3, warmup=1)
+    v = rtlab.Variant.paper(traversal=name)
+    r = rtlab.render(scene, backend, v, write_hits=True, repeats=3, warmup=1, lab=True)
     rep = check_render(scene, r, scene.camera)
     rows[name] = (r, rep)
     res = r.resources

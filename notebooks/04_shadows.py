@@ -41,7 +41,7 @@ modes = ["none", "one-pass", "two-pass"]
 results, errors = {}, {}
 refs = {True: reference_whitted(scene, bounces=0, shadows=True), False: reference_whitted(scene, bounces=0, shadows=False)}
 for mode in modes:
-    r = render_whitted(scene, backend, Variant(), shadows=mode, write_hits=True, repeats=5, warmup=1)
+    r = render_whitted(scene, backend, Variant.paper(), shadows=mode, write_hits=True, repeats=5, warmup=1, lab=True)
     e = whitted_error(r.image, {"P": r.hits.tri}, refs[mode != "none"])
     results[mode], errors[mode] = r, e
     regs = {k: v.get("local_bytes") for k, v in r.resources.items()}

@@ -40,7 +40,8 @@ print(backend.describe(), "|", scene.name, [m.name for m in scene.materials])
 # %%
 rows = {}
 for bounces in (0, 1, 2, 3):
-    r = render_whitted(scene, backend, Variant(), bounces=bounces, write_hits=True, repeats=3, warmup=1)
+    r = render_whitted(scene, backend, Variant.paper(), bounces=bounces, write_hits=True, repeats=3, warmup=1,
+                       lab=True)
     ref = reference_whitted(scene, bounces=bounces)
     tree = r.tree if r.tree is not None else {"P": r.hits.tri}
     e = whitted_error(r.image, tree, ref)
