@@ -7,26 +7,14 @@
     o2, d2 = rtlab.spawn_rays(scene, hits, new_directions)   # secondary rays off the hits
     result = rtlab.render(scene, size=256)
 """
-import os
-
-# numba's prange (kd-tree and BVH builders, the float64 reference) runs on GNU OpenMP, whose default
-# spin-waiting made each parallel launch cost ~8 ms while other processes kept both cores of the
-# 2-core lab machine busy; passive workers started in ~0.05 ms (~5 % slower on an idle machine).
-# Read only when numba first starts its threads, so it is set before any of them is imported.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-from .paths import ensure_user_cache  # noqa: E402
-
-ensure_user_cache()    # without a writable home, caches go to the temporary directory
-
-from .device.kernels import Variant  # noqa: E402
-from .errors import RtlabError  # noqa: E402
+from .errors import RtlabError
 
 __version__ = "0.1.0"
 
 
 def __getattr__(name):
-    # Lazy: importing rtlab stays cheap (no numba, trimesh or pyopencl until needed)
+    # Lazy: importing rtlab is cheap and changes nothing in the process (no numba, trimesh, pyopencl,
+    # kernel headers or cache folders until needed; tests/test_architecture.py checks)
     if name in ("load_scene", "list_scenes", "scene_from_arrays"):
         from . import scene
         return getattr(scene, name)
@@ -42,6 +30,9 @@ def __getattr__(name):
     if name == "render":
         from .device.rendering import render
         return render
+    if name == "Variant":
+        from .device.kernels import Variant
+        return Variant
     if name == "get_backend":
         from .backends import get_backend
         return get_backend

@@ -8,7 +8,7 @@ both: it is what these and the kernels are checked against. Imports nothing from
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 
 @njit(cache=True, inline="always")

@@ -20,6 +20,7 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
+from . import settings
 from .cexpr import ExprError, evaluate, tokens
 from .errors import RtlabError
 from .paths import REFERENCE_KERNEL_DIR
@@ -83,8 +84,7 @@ CONSTANTS_FILE_ENV = "RTLAB_KERNEL_CONSTANTS"
 def kernel_constants(shared_dir: Path = REFERENCE_KERNEL_DIR / "shared") -> dict[str, int | float]:
     """Every constant #define of :data:`HEADERS`, by name."""
     import json
-    import os
-    given = os.environ.get(CONSTANTS_FILE_ENV)
+    given = settings.get(CONSTANTS_FILE_ENV)
     if given:
         table = json.loads(Path(given).read_text())
         return {str(k): v for k, v in table.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}

@@ -5,7 +5,9 @@ README's layout naming the tree as it is."""
 from __future__ import annotations
 
 import ast
+import os
 import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -435,3 +437,59 @@ def test_readme_layout_lists_the_layers_in_order():
         wrong += [f"{layer} uses {u}, listed below it" for u in sorted(uses - above)]
         above.add(layer)
     assert not wrong, wrong
+
+
+# ---- settings and import side effects --------------------------------------------------------------
+
+_ENV_READ = re.compile(r"os\.(?:environ(?:\.get|\.setdefault|\.pop)?\s*[\[(]|getenv\s*\()\s*[\"'](RTLAB_\w+)")
+
+
+def test_settings_are_read_in_one_place():
+    """No module of rtlab reads an RTLAB_* variable itself: rtlab/settings.py is the one place, so each
+    is named and explained once (and the pattern finds the reads it forbids)."""
+    assert _ENV_READ.search('x = os.environ.get("RTLAB_FOO", "")')
+    assert _ENV_READ.search("os.environ['RTLAB_BAR'] = 1")
+    assert _ENV_READ.search('os.getenv("RTLAB_BAZ")')
+    reads = [f"{p.relative_to(PROJECT_DIR)}: {m.group(1)}" for p in PACKAGE_DIR.rglob("*.py")
+             if p.name != "settings.py" for m in _ENV_READ.finditer(p.read_text())]
+    assert not reads, f"RTLAB_* read outside rtlab/settings.py: {reads}"
+    used = {m for p in PACKAGE_DIR.rglob("*.py") for m in re.findall(r"[\"'](RTLAB_\w+)[\"']", p.read_text())}
+    from rtlab.settings import SETTINGS
+    assert not used - set(SETTINGS), f"RTLAB_* names not in rtlab.settings.SETTINGS: {sorted(used - set(SETTINGS))}"
+
+
+def test_readme_lists_every_setting():
+    """README's table of settings is rtlab.settings.SETTINGS, no more and no less."""
+    from rtlab.settings import SETTINGS
+    text = (PROJECT_DIR / "README.md").read_text()
+    table = set(re.findall(r"^\| `(\w+)` \|", text.split("### Settings", 1)[1].split("\n## ", 1)[0], re.M))
+    assert table == set(SETTINGS), f"README has {sorted(table - set(SETTINGS))}, lacks {sorted(set(SETTINGS) - table)}"
+
+
+def test_import_rtlab_changes_nothing():
+    """`import rtlab` in a fresh process sets no environment variable, creates no folder, parses no
+    kernel header and loads none of numba, pyopencl, pycuda or trimesh; the first use does."""
+    probe = textwrap.dedent("""
+        import os, sys, json
+        before = dict(os.environ)
+        import rtlab
+        heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'pyopencl', 'pycuda', 'trimesh')
+                       or m in ('rtlab.kernel_constants', 'rtlab.device.kernels'))
+        changed = sorted(set(os.environ.items()) ^ set(before.items()))
+        made = os.path.exists(os.environ["XDG_CACHE_HOME"])
+        import rtlab.jit
+        print(json.dumps({"heavy": heavy, "changed": changed, "made": made,
+                          "after_jit": os.environ.get("OMP_WAIT_POLICY"),
+                          "made_after_jit": os.path.exists(os.environ["XDG_CACHE_HOME"])}))
+    """)
+    import subprocess
+    import sys
+    import tempfile
+    with tempfile.TemporaryDirectory() as home:
+        env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY",)}
+        env["XDG_CACHE_HOME"] = str(Path(home) / "cache")
+        out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    import json
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert seen["heavy"] == [] and seen["changed"] == [] and not seen["made"], seen
+    assert seen["after_jit"] == "PASSIVE" and seen["made_after_jit"], f"rtlab.jit prepares the process: {seen}"

@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, prange
 from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant

@@ -19,17 +19,15 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant
 from .bvh import Bvh
 from .bvh8 import TRI_ROWS
 from .bvh_collapse import PLAIN_BUILD, SPLIT_BUILD, collapse, collapse_best
-from .cache import atomic_savez, cache_key, load_or_build
+from .wide_store import WideBvh
 
 FORMAT_VERSION = "bvh4f-v1"
 WIDTH = 4
@@ -61,21 +59,10 @@ class Bvh4BuildParams:
                 f"{PLAIN_BUILD.key()}-{SPLIT_BUILD.key()}")
 
 
-@dataclass
-class Bvh4:
-    rows: np.ndarray         # (R, 4) float32: nodes, then triangles
-    n_nodes: int
-    tri_ids: np.ndarray      # (T,) int32 triangle ids in leaf order
-    bounds: np.ndarray       # (2, 3) float32 root box
-    depth: int               # nodes on the longest root-to-leaf path
-    cost: float
-    binary: str
-    params: Bvh4BuildParams
-    build_seconds: float = 0.0
-
-    @property
-    def tri_row0(self) -> int:
-        return NODE_ROWS * self.n_nodes
+class Bvh4(WideBvh):
+    node_rows = NODE_ROWS
+    tri_rows = TRI_ROWS
+    format_version = FORMAT_VERSION
 
     def planes(self) -> np.ndarray:
         """(M, 6, 4) float32: lo.x, hi.x, lo.y, hi.y, lo.z, hi.z of each node's four slots."""
@@ -140,31 +127,8 @@ def build_bvh4(vertices: np.ndarray, faces: np.ndarray, params: Bvh4BuildParams 
                 time.perf_counter() - t0)
 
 
-def _save(path: Path, b: Bvh4) -> None:
-    atomic_savez(path, rows=b.rows, n_nodes=np.int64(b.n_nodes), tri_ids=b.tri_ids, bounds=b.bounds,
-                 depth=np.int64(b.depth), cost=np.float64(b.cost), binary=np.str_(b.binary),
-                 build_seconds=np.float64(b.build_seconds), format=np.str_(FORMAT_VERSION))
-
-
-def _load(path: Path, params: Bvh4BuildParams) -> Bvh4:
-    with np.load(path, allow_pickle=False) as z:
-        if str(z["format"]) != FORMAT_VERSION:
-            raise ValueError(f"{path.name}: format {z['format']}, expected {FORMAT_VERSION}")
-        rows, n_nodes, tri_ids = z["rows"], int(z["n_nodes"]), z["tri_ids"]
-        if (rows.dtype != np.float32 or rows.ndim != 2 or rows.shape[1] != 4 or tri_ids.dtype != np.int32
-                or rows.shape[0] != NODE_ROWS * n_nodes + TRI_ROWS * len(tri_ids)):
-            raise ValueError(f"{path.name}: unexpected array shapes or types")
-        return Bvh4(rows, n_nodes, tri_ids, z["bounds"], int(z["depth"]), float(z["cost"]), str(z["binary"]), params,
-                    float(z["build_seconds"]))
-
-
 def load_or_build_bvh4(vertices: np.ndarray, faces: np.ndarray, params: Bvh4BuildParams = Bvh4BuildParams(),
                        cache_dir: str | os.PathLike | None = None) -> tuple[Bvh4, bool]:
     """The mesh's BVH4 from the on-disk cache, else built and stored. Returns (bvh4, from_cache)."""
-    if not paths.cache_enabled():
-        return build_bvh4(vertices, faces, params, cache_dir), False
-    directory = Path(cache_dir) if cache_dir is not None else paths.accel_cache_dir()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / f"{cache_key(vertices, faces, params, FORMAT_VERSION)}.npz"
-    return load_or_build(path, lambda p: _load(p, params), lambda: build_bvh4(vertices, faces, params, cache_dir),
-                         _save, "BVH4")
+    return Bvh4.cached(vertices, faces, params, lambda: build_bvh4(vertices, faces, params, cache_dir), "BVH4",
+                        cache_dir)

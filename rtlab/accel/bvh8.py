@@ -41,16 +41,14 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .. import paths
 from ..errors import RtlabError, SceneError
 from ..kernel_constants import kernel_constant
 from .bvh import Bvh
 from .bvh_collapse import PLAIN_BUILD, SPLIT_BUILD, collapse_best
-from .cache import atomic_savez, cache_key, load_or_build
+from .wide_store import WideBvh
 
 FORMAT_VERSION = "cwbvh8-v1"    # bump when the builder's output for the same inputs changes
 WIDTH = 8
@@ -86,25 +84,14 @@ class Bvh8BuildParams:
         return f"{FORMAT_VERSION}-cn{self.cost_node}-cp{self.cost_prim}-{self.binary}-{PLAIN_BUILD.key()}-{SPLIT_BUILD.key()}"
 
 
-@dataclass
-class Bvh8:
-    rows: np.ndarray         # (R, 4) float32: nodes, then triangles (module docstring)
-    n_nodes: int
-    tri_ids: np.ndarray      # (T,) int32 triangle ids in leaf order (also the w of each triangle's first row)
-    bounds: np.ndarray       # (2, 3) float32 root box
-    depth: int               # nodes on the longest root-to-leaf path: the stack needs at most depth entries
-    cost: float              # the collapse's SAH cost (C(root) / area(root))
-    binary: str              # "plain" or "split": the binary tree it was collapsed from
-    params: Bvh8BuildParams
-    build_seconds: float = 0.0
+class Bvh8(WideBvh):
+    node_rows = NODE_ROWS
+    tri_rows = TRI_ROWS
+    format_version = FORMAT_VERSION
 
     def nodes(self) -> np.ndarray:
         """The node rows as NODE_DTYPE records (a view)."""
         return self.rows[:NODE_ROWS * self.n_nodes].reshape(self.n_nodes, 4 * NODE_ROWS).view(NODE_DTYPE).reshape(-1)
-
-    @property
-    def tri_row0(self) -> int:
-        return NODE_ROWS * self.n_nodes
 
 
 # ---- 4. quantisation ---------------------------------------------------------------------------------
@@ -220,32 +207,8 @@ def build_bvh8(vertices: np.ndarray, faces: np.ndarray, params: Bvh8BuildParams 
                 time.perf_counter() - t0)
 
 
-def _save(path: Path, b: Bvh8) -> None:
-    atomic_savez(path, rows=b.rows, n_nodes=np.int64(b.n_nodes), tri_ids=b.tri_ids, bounds=b.bounds,
-                 depth=np.int64(b.depth), cost=np.float64(b.cost), binary=np.str_(b.binary),
-                 build_seconds=np.float64(b.build_seconds), format=np.str_(FORMAT_VERSION))
-
-
-def _load(path: Path, params: Bvh8BuildParams) -> Bvh8:
-    with np.load(path, allow_pickle=False) as z:
-        if str(z["format"]) != FORMAT_VERSION:
-            raise ValueError(f"{path.name}: format {z['format']}, expected {FORMAT_VERSION}")
-        rows, n_nodes, tri_ids = z["rows"], int(z["n_nodes"]), z["tri_ids"]
-        if (rows.dtype != np.float32 or rows.ndim != 2 or rows.shape[1] != 4 or tri_ids.dtype != np.int32
-                or rows.shape[0] != NODE_ROWS * n_nodes + TRI_ROWS * len(tri_ids)):
-            raise ValueError(f"{path.name}: unexpected array shapes or types")
-        return Bvh8(rows, n_nodes, tri_ids, z["bounds"], int(z["depth"]), float(z["cost"]), str(z["binary"]), params,
-                    float(z["build_seconds"]))
-
-
 def load_or_build_bvh8(vertices: np.ndarray, faces: np.ndarray, params: Bvh8BuildParams = Bvh8BuildParams(),
                        cache_dir: str | os.PathLike | None = None) -> tuple[Bvh8, bool]:
-    """The mesh's BVH8 from the on-disk cache (keyed like the other structures: mesh content and build
-    parameters; RTLAB_NO_CACHE=1 turns it off), else built and stored. Returns (bvh8, from_cache)."""
-    if not paths.cache_enabled():
-        return build_bvh8(vertices, faces, params, cache_dir), False
-    directory = Path(cache_dir) if cache_dir is not None else paths.accel_cache_dir()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / f"{cache_key(vertices, faces, params, FORMAT_VERSION)}.npz"
-    return load_or_build(path, lambda p: _load(p, params), lambda: build_bvh8(vertices, faces, params, cache_dir),
-                         _save, "BVH8")
+    """The mesh's BVH8 from the on-disk cache, else built and stored. Returns (bvh8, from_cache)."""
+    return Bvh8.cached(vertices, faces, params, lambda: build_bvh8(vertices, faces, params, cache_dir), "BVH8",
+                        cache_dir)

@@ -22,12 +22,12 @@ boxes, children and counts, then the cost tables), each step reading what the on
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, _usable_boxes, load_or_build_bvh
+from .bvh_stats import SPLIT_BUILD     # the "bvh" traversal's tree
 
 PLAIN_BUILD = BvhBuildParams()
-SPLIT_BUILD = BvhBuildParams(spatial_alpha=1e-5)
 SPLIT_MIN_GAIN = 0.02           # the spatial-split tree is taken where its cost is this much lower
 
 

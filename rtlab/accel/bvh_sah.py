@@ -4,7 +4,7 @@ it. rtlab.accel.bvh builds with these; rtlab.accel.bvh_splits adds spatial split
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 
 @njit(cache=True)

@@ -26,8 +26,8 @@ the SAH cost (rtlab.accel.bvh_stats.traversal_bvh, which also gives the H100 fig
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from .bvh_sah import half_area6
 
 CLIP_PAD = 2.0 ** -46        # relative rounding bound of a float64 clip point (a few ulps of 2^-52)

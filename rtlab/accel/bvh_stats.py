@@ -13,8 +13,8 @@ inner-node visits and triangle tests per ray.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, prange
 from ..geometry import moller_trumbore_t, slab_interval
 from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, load_or_build_bvh
 

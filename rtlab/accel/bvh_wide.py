@@ -27,8 +27,8 @@ ceil(count / L) blocks from row ``row``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from ..errors import SceneError
 from ..kernel_constants import kernel_constant
 from .bvh import Bvh, BvhBuildParams, load_or_build_bvh

@@ -7,8 +7,8 @@ triangle and its t (tests/test_wide_bvh.py, benchmarks/bench_wide_bvh_quality.py
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from .bvh4 import LEAF_BITS as BVH4_LEAF_BITS, NODE_ROWS as BVH4_NODE_ROWS, Bvh4
 from .bvh8 import NODE_ROWS, TRI_ROWS, Bvh8, decoded_boxes
 from ..geometry import moller_trumbore_t, slab_interval

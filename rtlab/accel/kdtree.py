@@ -68,7 +68,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-import numba
+from ..jit import numba
 import numpy as np
 
 from .kdtree_kernels import LEAF_TAG, box_area, link_level, plan_nodes, scatter_nodes, triangle_boxes

@@ -10,8 +10,8 @@ equal bits in the exact sweep.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from ..kernel_constants import kernel_constant
 
 LEAF_TAG = int(kernel_constant("KD_LEAF"))   # axis field 3 marks a leaf (rt_kdtree.h)

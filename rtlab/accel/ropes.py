@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from ..errors import RtlabError
 from ..kernel_constants import kernel_constant
 from .kdtree import LEAF_TAG, KdTree

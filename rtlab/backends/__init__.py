@@ -5,8 +5,7 @@ it works, else OpenCL); device by name substring or index (``$RTLAB_DEVICE``; ``
 """
 from __future__ import annotations
 
-import os
-
+from .. import settings
 from ..errors import BackendError
 from .base import Backend, KernelResources, Program
 
@@ -15,8 +14,8 @@ _cache: dict = {}
 
 
 def get_backend(name: str | None = None, device: str | None = None) -> Backend:
-    name = (name or os.environ.get("RTLAB_BACKEND") or "auto").lower()
-    device = device if device is not None else os.environ.get("RTLAB_DEVICE")
+    name = (name or settings.get("RTLAB_BACKEND") or "auto").lower()
+    device = device if device is not None else settings.get("RTLAB_DEVICE")
     if name not in BACKEND_NAMES + ("auto",):
         raise BackendError(f"unknown backend '{name}'; choose one of: {', '.join(BACKEND_NAMES)}, auto")
     key = (name, device)

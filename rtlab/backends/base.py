@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import settings
+
 
 # nvcc's division and square root at NVIDIA OpenCL's default precision (OpenCL C allows 2.5 ulp for
 # x / y and 3 ulp for sqrt; NVIDIA's compiler emits div.full/rcp.approx/rsqrt.approx). nvcc's IEEE
@@ -155,7 +157,7 @@ def read_source(path) -> str:
 
 def verbose() -> bool:
     """Whether compiler output is shown: $RTLAB_VERBOSE set (and not 0), as `rtlab --verbose` sets it."""
-    return os.environ.get("RTLAB_VERBOSE", "").strip() not in ("", "0")
+    return settings.flag("RTLAB_VERBOSE")
 
 
 @contextmanager

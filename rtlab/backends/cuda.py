@@ -4,14 +4,14 @@ pycuda is imported only here, lazily, so every other part of rtlab works without
 """
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+from .. import settings
 from ..errors import BackendError, KernelBuildError
-from ..paths import include_dirs
+from ..paths import include_dirs, prepare_process
 from .base import (CUDA_PRECISION_OPTIONS, Backend, KernelResources, Program, Texture, format_build_error, read_source,
                    report_build_log, round_up)
 from .occupancy import SmLimits, cuda_occupancy
@@ -19,6 +19,7 @@ from .occupancy import SmLimits, cuda_occupancy
 
 def _pycuda():
     try:
+        prepare_process()
         import pycuda.driver as drv
     except ImportError as e:
         raise BackendError(f"CUDA backend unavailable: pycuda is not installed ({e}); "
@@ -150,7 +151,7 @@ class CudaBackend(Backend):
     def __init__(self, device: str | None = None):
         drv = _pycuda()
         self.drv = drv
-        want = device if device is not None else os.environ.get("RTLAB_CUDA_DEVICE")
+        want = device if device is not None else settings.get("RTLAB_CUDA_DEVICE")
         index = 0
         if want:
             names = [drv.Device(i).name() for i in range(drv.Device.count())]
@@ -202,7 +203,7 @@ class CudaBackend(Backend):
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv
-        options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple(os.environ.get("RTLAB_NVCC_OPTIONS", "").split())
+        options = CUDA_PRECISION_OPTIONS + tuple(options) + tuple((settings.get("RTLAB_NVCC_OPTIONS") or "").split())
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), options)
         if key in self._programs:
             return self._programs[key]

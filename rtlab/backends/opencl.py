@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import settings
 from ..errors import BackendError, KernelBuildError
-from ..paths import include_dirs
+from ..paths import include_dirs, prepare_process
 from .base import (Backend, KernelResources, Program, Texture, captured_stderr, format_build_error, read_source,
                    report_build_log, round_up)
 
@@ -20,6 +21,7 @@ POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: 
 
 def _cl():
     try:
+        prepare_process()
         import pyopencl as cl
     except ImportError as e:  # pragma: no cover - pyopencl is a hard dependency
         raise BackendError(f"pyopencl is not installed ({e}); `pip install pyopencl`") from None
@@ -56,7 +58,7 @@ def choose_device(device: str | None = None):
     found = list_devices()
     if not found:
         raise BackendError(POCL_HINT)
-    want = device if device is not None else os.environ.get("PYOPENCL_CTX")
+    want = device if device is not None else settings.get("PYOPENCL_CTX")
     if want and want.strip().lower() in ("cpu", "gpu"):
         kind = cl.device_type.CPU if want.strip().lower() == "cpu" else cl.device_type.GPU
         typed = sorted((f for f in found if f[3].type & kind), key=lambda f: _version_key(f[2]), reverse=True)
@@ -105,7 +107,7 @@ class OpenCLProgram(Program):
         self._constants[name] = (self.backend.to_device(data), data.tobytes())
 
     def launch(self, kernel, global_size, block, args, constants=(), shared_bytes=0):
-        cl = _cl()
+        _cl()    # the backend is importable (raises BackendError otherwise)
         if shared_bytes:
             raise BackendError("dynamic local memory padding is CUDA only (the kernels take no __local argument)")
         gsize = tuple(round_up(g, b) for g, b in zip(global_size, block))
@@ -208,7 +210,7 @@ class OpenCLBackend(Backend):
         flags += list(options)
         if self.is_nvidia():
             flags.append("-cl-nv-verbose")
-        extra = os.environ.get("RTLAB_CL_OPTIONS")
+        extra = settings.get("RTLAB_CL_OPTIONS")
         if extra:
             flags += extra.split()
         # The compiler's own prints (PoCL's clang writes "1 warning generated." to the process's

@@ -6,15 +6,15 @@ of range) print one line on stderr and exit with status 2, never a traceback (``
 """
 from __future__ import annotations
 
-import os
 import sys
 from typing import Optional
 
 import typer
 from rich.markup import escape
 
+from .. import settings
 from ..errors import RtlabError
-from . import bench, bench_paper, course, render, scene
+from . import bench, bench_paper, course, render, scene  # noqa: F401 (each registers its commands)
 from .common import err_console
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -29,7 +29,7 @@ def _options(verbose: bool = typer.Option(False, "--verbose", "-v",
                                                "$RTLAB_VERBOSE=1 does the same")):
     """rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL."""
     if verbose:
-        os.environ["RTLAB_VERBOSE"] = "1"     # read by rtlab.backends.base.verbose() at each build
+        settings.setenv("RTLAB_VERBOSE", "1")     # read by rtlab.backends.base.verbose() at each build
 
 
 def _one_line(text: str) -> str:
@@ -68,7 +68,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         err_console.print(f"[bold red]rtlab:[/]{escape(where)}: {escape(e.strerror or str(e))}", highlight=False)
         return 1
     except Exception as e:
-        if os.environ.get("RTLAB_TRACEBACK", "").strip() not in ("", "0"):
+        if settings.flag("RTLAB_TRACEBACK"):
             raise
         err_console.print(f"[bold red]rtlab: unexpected error[/] ({escape(type(e).__name__)}: "
                           f"{escape(_one_line(e))}); this is a bug: RTLAB_TRACEBACK=1 shows where", highlight=False)

@@ -10,6 +10,7 @@ from typing import Optional
 
 import typer
 
+from .. import settings
 from ..errors import RtlabError
 from .common import (append_markdown, backend_list, block_shape, command_line, console, int_list, kd_tree, load_scene,
                      names, print_tables, use_kernels)
@@ -156,7 +157,7 @@ def bench_cpu(ctx: typer.Context,
     from ..benches.cpu import EmbreeTracer, bench_cpu_variants, cpu_markdown, cpu_tables, table_rows
     from ..benches.rays import RAY_KINDS, make_rays
     from ..device.tracing import default_variant, resolve_variant
-    backend = get_backend("opencl", device if device is not None else os.environ.get("RTLAB_DEVICE", "cpu"))
+    backend = get_backend("opencl", device if device is not None else settings.get("RTLAB_DEVICE", "cpu"))
     chosen = [default_variant(backend) if v == "default" else resolve_variant(v, backend) for v in names(variants)]
     kinds = names(kind)
     if not chosen or not kinds or any(k not in RAY_KINDS for k in kinds):

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..accel.bvh import load_or_build_bvh
 from ..accel.bvh4 import load_or_build_bvh4
 from ..accel.bvh8 import load_or_build_bvh8
 from ..accel.bvh_stats import traversal_bvh

@@ -33,7 +33,8 @@ from pathlib import Path
 
 def _send(header: dict, arrays=None) -> None:
     from rtlab.labs.channel import write_frame
-    write_frame(int(os.environ["RTLAB_RESULT_FD"]), header, arrays)
+    from rtlab import settings
+    write_frame(int(settings.get("RTLAB_RESULT_FD")), header, arrays)
 
 
 def _error(status: str, output: str) -> None:

@@ -41,6 +41,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import settings
+
 # The environment variable that turns the sandbox off (debugging the grader itself, never grading)
 SANDBOX_OFF_ENV = "RTLAB_GRADER_SANDBOX"
 SANDBOX_USER_ENV = "RTLAB_SANDBOX_USER"
@@ -54,7 +56,7 @@ PR_SET_NO_NEW_PRIVS = 38
 
 
 def sandbox_enabled() -> bool:
-    return os.environ.get(SANDBOX_OFF_ENV, "").strip().lower() not in ("0", "off", "no", "false")
+    return settings.get(SANDBOX_OFF_ENV) is None or settings.flag(SANDBOX_OFF_ENV)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -75,7 +77,7 @@ def sandbox_user(env: dict | None = None) -> SandboxUser | None:
     (:func:`drop_root_powers`), Landlock then being what keeps it from the grader's files."""
     if os.geteuid() != 0:
         return None
-    wanted = os.environ.get(SANDBOX_USER_ENV)
+    wanted = settings.get(SANDBOX_USER_ENV)
     for name in ([wanted] if wanted else DEFAULT_USERS):
         try:
             pw = pwd.getpwnam(name)

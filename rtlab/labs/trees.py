@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import settings
 from ..errors import LabError
 from .config import LabConfig, lab_names, load_config
 from .regions import find_regions, strip_regions
@@ -262,10 +263,9 @@ def kernel_tree_summary(variant=None, step: str | None = None, kernels=("render_
     """One or two lines saying which kernel tree this process compiles (and where that choice came
     from) and which functions in it are still the template's stubs; with ``variant`` (and the lab
     ``step`` whose kernel runs), a warning when the kernels it launches call one of them."""
-    import os
     from ..paths import REFERENCE_KERNEL_DIR, kernel_dir
     root = kernel_dir()
-    env = os.environ.get("RTLAB_KERNEL_DIR")
+    env = settings.get("RTLAB_KERNEL_DIR")
     if env and Path(env).resolve() == root.resolve():
         origin = "from $RTLAB_KERNEL_DIR"
     elif root.resolve() == REFERENCE_KERNEL_DIR.resolve():

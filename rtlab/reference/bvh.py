@@ -11,8 +11,8 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from .watertight import mesh_f64, usable_triangle_mask
 
 _BOX_SPATIAL_PAD_REL = 1e-9

@@ -41,8 +41,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, prange
 from .bvh import ReferenceBVH, build_reference_bvh, cached_reference_bvh
 from .watertight import (UNIT_ROUNDOFF, mesh_f64, ray_shear, ray_shear_numpy, usable_triangle_mask, woop_hit,
                          woop_numpy)

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+from .. import settings
 from ..errors import InspectError
 
 HEADLESS_WINDOWS = ("vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow")
@@ -44,7 +45,7 @@ def ensure_headless_gl() -> str:
     global _headless
     if _headless:
         return _headless
-    chosen = os.environ.get("RTLAB_VTK_WINDOW")
+    chosen = settings.get("RTLAB_VTK_WINDOW")
     if not chosen:
         reasons = []
         for cls in HEADLESS_WINDOWS:
@@ -57,7 +58,7 @@ def ensure_headless_gl() -> str:
             raise InspectError("no OpenGL for off-screen rendering: install EGL (apt-get install libegl1 "
                                "libgl1-mesa-dri) or OSMesa (apt-get install libosmesa6). Tried: " + "; ".join(reasons))
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = chosen
-    os.environ["RTLAB_VTK_WINDOW"] = chosen      # child processes (notebook kernels) skip the probe
+    settings.setenv("RTLAB_VTK_WINDOW", chosen)      # child processes (notebook kernels) skip the probe
     _headless = chosen
     return chosen
 

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ...settings import HIT_T_REL_TOL
 from .base import (DEFAULT_WORK_BUDGET, PROBE_IMAGE, PROBE_RAYS, Kind, Outcome, Prepared, Produced, camera_scene,
                    describe_hit_errors, describe_image_error, device_scene_of, fresh_outputs, hits_agree, pixel_namer,
                    primary_step_of, ray_namer, require_hits, spec_variant, work_budget_applies, work_probe)
@@ -45,7 +46,7 @@ class TraceRaysKind(Kind):
     name = "trace_rays"
     params = {"rays": "random", "count": 4000, "seed": 7, "tmin": 0.0, "tmax": float("inf"),
               "traversal": "", "intersection": "", "node_memory": "", "block": None}
-    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5, "work_budget": DEFAULT_WORK_BUDGET}
+    tolerance = {"mismatch_fraction": 0.0, "t_rel": HIT_T_REL_TOL, "work_budget": DEFAULT_WORK_BUDGET}
 
     def prepare(self, spec, scene):
         from ...reference import reference_trace
@@ -139,7 +140,7 @@ class RenderKind(Kind):
     shading (PSNR), and the render's reads within the work budget."""
     name = "render"
     params = {"traversal": "", "intersection": "", "node_memory": "", "block": None}
-    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5, "min_psnr": 40.0, "work_budget": DEFAULT_WORK_BUDGET}
+    tolerance = {"mismatch_fraction": 0.0, "t_rel": HIT_T_REL_TOL, "min_psnr": 40.0, "work_budget": DEFAULT_WORK_BUDGET}
 
     def prepare(self, spec, scene):
         from ...reference.shading import reference_shade, to_rgb8
@@ -218,7 +219,7 @@ class IntersectLoopKind(Kind):
     file (the paper's timing setup, ``"first"``) may cover no pixel of a small image."""
     name = "intersect_loop"
     params = {"intersection": "moller", "n_tris": 1000, "triangles": "visible", "block": None}
-    tolerance = {"mismatch_fraction": 0.0, "t_rel": 1e-5}
+    tolerance = {"mismatch_fraction": 0.0, "t_rel": HIT_T_REL_TOL}
 
     def prepare(self, spec, scene):
         from ...errors import RtlabError
