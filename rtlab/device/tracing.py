@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..backends import get_backend
-from ..errors import RtlabError, VariantError
+from ..errors import RtlabError
 from ..scene.model import Scene
 from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
