@@ -4,7 +4,7 @@ Table 2 columns, SAH cost, build time, and primary-ray Mrays/s of the same rays 
     python benchmarks/bench_kd_vs_bvh.py [--scenes default,bunny,sponza,kitchen,dragon] [--size 512]
                                          [--repeats 7] [--backend opencl]
 
-For each scene: both kd-trees (KdBuildParams(flat_cells=False), the build before issue 16, and the
+For each scene: both kd-trees (KdBuildParams(flat_cells=False), the build without flat cells, and the
 default) and the BVH are built first; then the preset camera's rays are rendered (render_primary,
 stack traversal on each kd-tree, and the BVH traversal) in rounds, so that load on a shared machine
 hits every variant alike; the median over rounds of each variant's launch time is reported.

@@ -1,4 +1,4 @@
-"""rtlab on PoCL against Embree on one thread, measured live on the same rays (issue 15).
+"""rtlab on PoCL against Embree on one thread, measured live on the same rays.
 
 For each PoCL thread count asked for (default: one, then one a core) a fresh process (PoCL reads
 its thread count when it starts) traces the views' primary rays with rtlab (the bvh-packet

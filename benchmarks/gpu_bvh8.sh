@@ -101,7 +101,7 @@ PY
         echo "whitted sponza 1024² $be $t: ${line:-failed}"
       done
     done | tee "$OUT/whitted.txt"
-    # PSNR against the float64 reference at 256² (the check), the wide traversals
+    # PSNR against the float64 reference at 256² (the Whitted frame's check), the wide traversals
     for t in ${TRAVERSALS//,/ }; do
       psnr=$(timeout 200 python -m rtlab render sponza --backend cuda --device "$DEVICE" --size 256 --bounces 3 \
         --materials paper --shadows one-pass --schedule wavefront --traversal $t --check --out "$OUT/sponza_check.png" 2>&1 \

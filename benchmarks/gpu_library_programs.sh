@@ -1,6 +1,6 @@
 #!/bin/bash
 # The library's own programs (kernels/{cuda,opencl}/library_*.{cu,cl}, entry kernels written once in
-# kernels/shared/rt_entry_*.h) on the GPU machine, to compare with the figures of docs/benchmarks.md:
+# kernels/shared/rt_entry_*.h) on the GPU machine, to compare with the figures of docs/results.md:
 #   tests     the gpu-marked tests, then the registry's, the programs' and lab step 01's (the ray in shared
 #             memory runs on CUDA only) on CUDA and NVIDIA OpenCL
 #   primary   rtlab bench rays --kind primary, the GPU default (bvh, watertight, 8x16), every view of

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 13's figures on the GPU machine, CUDA and NVIDIA OpenCL: the robustness suite with families
+# Numerics on the GPU machine, CUDA and NVIDIA OpenCL: the robustness suite with families
 # 10-12 (box planes under the BVH's fused box test, spawn offsets far from the origin, direction
 # lengths 1e-30..1e30) and the default triangle test (Moller against watertight on the benchmark
 # views: rays through edges and vertices, trace and render time). Markdown into $OUT/numerics.md.
@@ -11,7 +11,7 @@ log() { echo "\$ $*" | tee -a "$OUT/numerics.log"; timeout ${STEP_TIMEOUT:-900} 
 log python -m rtlab bench robustness --backends cuda,opencl --device NVIDIA --size bench --families 10,11,12 --md "$MD"
 log python benchmarks/bench_default_isect.py --backend cuda --size 1024 --leak-rays 100000 --repeat 9 --md "$MD"
 log python benchmarks/bench_default_isect.py --backend opencl --device NVIDIA --size 1024 --leak-rays 100000 --repeat 9 --md "$MD"
-# issue 5's wavefront kernel: the padded fused box test (more registers) against the exact one, and the watertight default
+# the wavefront Whitted kernel: the padded fused box test (more registers) against the exact one, and the watertight default
 log python benchmarks/profile_whitted.py --scene sponza --size 1024 --bounces 3 --backend cuda --repeats 20 \
     --configs bvh:wavefront:block8x8:isect=moller:fma1,bvh:wavefront:block8x8:isect=moller:fma0,bvh:wavefront:block8x8
 RTLAB_TEST_BACKENDS=cuda,opencl:NVIDIA log python -m pytest -q -rfEs tests/test_robustness.py tests/test_traversal.py -k "ties or fused_box or spawn or direction or gpu"

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 12 evidence on the GPU machine: trace() timed three ways on both backends (the same rays),
+# Where trace()'s time goes on the GPU machine: timed three ways on both backends (the same rays),
 # Nsight Compute on each backend's trace_rays for one view, the OpenCL PTX for offline comparison,
 # then the trace-API benchmark table.
 # Usage (device run, carry .device; stage bunny.ply sponza):

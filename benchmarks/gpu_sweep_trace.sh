@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 12 on the GPU machine: trace() timed three ways per backend (launch / plain / amortised),
+# trace() on the GPU machine, timed three ways per backend (launch / plain / amortised),
 # then a sweep of CUDA's trace_rays over nvcc precision options, register caps and block sizes beside
 # NVIDIA OpenCL, with mismatches against the float64 reference. Logs in $OUT/sweep.tgz.
 # Usage (device run, carry .device; stage bunny.ply sponza conference):

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 5 on the GPU machine: the SPONZA target (shadows + 3 bounces at 1024²) for every schedule,
+# Whitted frames on the GPU machine: SPONZA (shadows + 3 bounces at 1024²) for every schedule,
 # a per-level profile, and Table 5 (`rtlab bench shading`) for CUDA and NVIDIA OpenCL.
 # Usage (device run, carry .device; stage sponza kitchen bunny.ply):
 #   source .device/setup.sh && bash benchmarks/gpu_whitted.sh

@@ -6,8 +6,8 @@ the compiled code of both backends dumped for comparison.
 
 Timings (median of --repeats launches after warm-up, Mrays/s):
   launch      what rtlab reports (Program.launch: CUDA events behind a GPU spin, OpenCL profiling)
-  plain       CUDA only: events around pycuda's unprepared call on an idle GPU (rtlab before issue
-              12): the host's argument packing and launch latency fall inside the events
+  plain       CUDA only: events around pycuda's unprepared call on an idle GPU (how rtlab once timed
+              CUDA): the host's argument packing and launch latency fall inside the events
   amortised   one event pair around --repeats back-to-back launches, divided by their number
 --sweep times CUDA's trace_rays over nvcc options (--nvcc-options, ';'-separated sets), register caps
 (--max-registers) and block sizes (--blocks) beside OpenCL's, with the mismatches of each against

@@ -71,8 +71,8 @@ assert all(rs[0].bench.error["mismatches"] == 0 for rs in rows.values())
 # ## Time and registers per placement
 # Left: time relative to the global variant on each scene (1.0 = global). Right: what nvcc gives
 # the render kernel on sm_90 for each placement (registers and stack bytes), whatever the device
-# here. The H100 measured (docs/benchmarks.md): textures 6 % slower than `__ldg`, the indexed ray
-# 28 % slower, the shared-memory ray 2–6 % slower.
+# here. The H100 measured (docs/results.md, "Memory placement"): textures 6 % slower than `__ldg`,
+# the indexed ray 28 % slower, the shared-memory ray 2–6 % slower.
 
 # %%
 names = [p for p in PLACEMENTS if any(r.placement == p for rs in rows.values() for r in rs)]

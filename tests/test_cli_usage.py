@@ -1,4 +1,4 @@
-"""A newcomer's session prints no traceback (issue 16): every command the README shows runs in a cheap
+"""A newcomer's session prints no traceback: every command the README shows runs in a cheap
 form (default scene, tiny images, one repeat) from a directory outside the checkout and exits 0, or
 fails in one clear line where the machine lacks what it needs (CUDA); mistyped options and bad values
 are one line on stderr and exit status 2. The README's commands are read from README.md, so a command

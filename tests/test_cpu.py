@@ -1,4 +1,4 @@
-"""The CPU path (issue 15): the bvh-packet traversal (packets of rays in SIMD lanes), its host
+"""The CPU path: the bvh-packet traversal (packets of rays in SIMD lanes), its host
 layout, its launch shapes, and `rtlab bench cpu` against Embree.
 
 The packet traversal is also in tests/test_traversal.py's VARIANTS (camera, random and split-plane

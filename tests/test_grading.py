@@ -602,7 +602,7 @@ def test_hidden_tests_draw_their_rays_from_the_secret():
 def test_sponza_flat_cells_catch_the_textbook_restart(tmp_path):
     """kd-restart taking the far child at ties steps over flat cells: the SPONZA 128x128 render
     catches it (8 wrong pixels with the kd-tree before flat cells, when it passed every other test;
-    with flat cells in the builder, issue 16, the random rays catch it too)."""
+    with flat cells in the builder, the random rays catch it too)."""
     from .conftest import require_scene_file
     require_scene_file("sponza/sponza.obj")
     sub = materialize("restart_far_at_ties", tmp_path / "sub", "03_traversal")

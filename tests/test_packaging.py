@@ -1,4 +1,4 @@
-"""A non-editable install works from any directory (issue 16): the wheel ships kernels/ and labs/
+"""A non-editable install works from any directory: the wheel ships kernels/ and labs/
 as rtlab/_data, and rtlab run from an unpacked wheel, in another directory, finds them there,
 renders and writes a lab template. scripts/check_wheel.sh does the same from a fresh venv (CI).
 Also: caches still work without a writable home.

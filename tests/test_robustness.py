@@ -1,6 +1,6 @@
-"""The stiff/extreme-case suite (issue 4, rtlab.robustness) at its small "test" size: every
+"""The stiff/extreme-case suite (rtlab.robustness) at its small "test" size: every
 triangle test x every traversal in rtlab.device.kernels.TRAVERSALS on every family, against the float64
-reference. The watertight test with the conservative traversal must reach the issue's goals (0
+reference. The watertight test with the conservative traversal must reach the suite's goals (0
 where the goal is 0); the other tests' leak and error rates are bounded at about twice what was
 measured on PoCL, so that a regression fails while the lesson (they leak) stays visible.
 The full sizes (127² stairs, 10^5 rays) run in `rtlab bench robustness`."""
@@ -214,7 +214,7 @@ def test_bench_robustness_command(backend, tmp_path):
     assert "| 4 | stairs | moller | stack |" in text and "| 4 | stairs | watertight | stack | 1 |" in text
 
 
-# ---- issue 13's families ----------------------------------------------------------------------
+# ---- families 10-12: box planes, spawn offsets, direction lengths -------------------------------
 def test_fused_box_test_keeps_what_the_exact_kd_traversal_keeps(backend):
     """Family 10 (box planes, a small sphere in a large room; the BVH on its fused box test): for
     every triangle test the BVH misses and leaks no more than the stack kd traversal, whose box

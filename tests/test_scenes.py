@@ -409,7 +409,7 @@ def test_no_cache_env(tmp_path, private_cache, monkeypatch):
     assert not private_cache.exists()
 
 
-# ---- issue 13: a Scene and a Camera check themselves ----------------------------------------------
+# ---- a Scene and a Camera check themselves -------------------------------------------------------
 def _tri_scene(vertices=TRIANGLE, faces=((0, 1, 2),), material_ids=(0,), materials=None, **kw):
     return Scene("probe", np.asarray(vertices, np.float32) if np.ndim(vertices) else vertices,
                  np.asarray(faces), np.asarray(material_ids), materials if materials is not None else [Material()],

@@ -114,7 +114,7 @@ def test_bench_batch_checks_an_even_subsample(tmp_path):
 @pytest.mark.gpu
 def test_cuda_launch_time_leaves_out_the_host():
     """A kernel of a few microseconds: the events bracket the kernel, not pycuda's launch overhead
-    (before issue 12 that overhead, ~25 us, was inside every CUDA time). The rays start outside the
+    (timed around pycuda's call, that overhead, ~25 us, would be inside every CUDA time). The rays start outside the
     scene's box and point away from it, so each thread loads its ray, fails the box clip and writes
     a miss: the kernel's own time does not depend on the scene's depth or the GPU's latency."""
     from rtlab.backends import get_backend

@@ -478,7 +478,7 @@ def test_fused_box_test_only_for_scenes_near_the_origin():
 
 
 # ------------------------------------------------------------------------------------------------
-# issue 13: ties, the fused box test, stale uploads, the ray interval, extreme direction lengths
+# ties, the fused box test, stale uploads, the ray interval, extreme direction lengths
 # ------------------------------------------------------------------------------------------------
 ISECTS = ["moller", "wald", "plucker", "watertight"]
 

@@ -24,10 +24,11 @@ NODE_COST, TRI_COST = 65.0, 45.0
 
 
 # The "bvh" traversal's tree: spatial splits (SBVH, alpha 1e-5, 16 bins) where they lower the SAH
-# cost by at least SPLIT_MIN_GAIN, else the plain binned-SAH build. H100, CUDA, Moller, trace() on
-# the peers' views (docs/benchmarks.md, issue 12): SPONZA +36 to +45 %, CONFERENCE +6 % primary at
-# 1024² and +15 % diffuse, DRAGON +2 to +5 %; KITCHEN, whose SAH cost the splits raise (13.4 -> 13.7),
-# -21 to -27 % primary, so it keeps the plain tree; BUNNY gains nothing either way.
+# cost by at least SPLIT_MIN_GAIN, else the plain binned-SAH build. The SAH cost predicts the GPU
+# here: with splits SPONZA, CONFERENCE and DRAGON trace faster on the H100, while KITCHEN, whose SAH
+# cost the splits raise (13.4 -> 13.7: big walls chopped into pieces that sit deeper), traces primary
+# rays a fifth to a quarter slower, so it keeps the plain tree; BUNNY gains nothing either way (the
+# A/B is in CHANGELOG.md, the current figures in docs/results.md).
 SPLIT_BUILD = BvhBuildParams(spatial_alpha=1e-5)
 SPLIT_MIN_GAIN = 0.02
 

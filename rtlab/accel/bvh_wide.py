@@ -40,7 +40,7 @@ BLOCK_VECTORS = int(kernel_constant("WBVH_BLOCK_VECTORS"))   # lane vectors a bl
 MAX_ROW = (1 << (31 - LEAF_BITS)) - 1
 # SAH costs of the binary tree before it is collapsed: a binary node (two box tests) costs two
 # triangle tests, leaves of up to 8 triangles (a block); leaves of 15 and node costs of 1 or 3 were
-# within 5 % on the benchmark views (docs/benchmarks.md)
+# within 5 % on the benchmark views on PoCL, so the simplest stays (the A/B is in CHANGELOG.md)
 CPU_BUILD = BvhBuildParams(max_leaf_size=8, cost_traversal=2.0)
 # ... and the same with spatial splits (SBVH, as the GPU BVH's SPLIT_BUILD), kept where its SAH cost
 # is SPLIT_MIN_GAIN lower (rtlab.accel.bvh_stats)

@@ -172,6 +172,6 @@ def table3_tables(rows: list[Table3Row]) -> list[Table]:
 
 
 def table3_markdown(rows: list[Table3Row], command: str) -> str:
-    """Markdown for docs/benchmarks.md: the command, then Table 3 with the in-render columns."""
+    """Markdown for docs/results/ (the paper's tables): the command, then Table 3 with the in-render columns."""
     return report_markdown(f"Table 3: triangle tests, first {rows[0].n_tris if rows else TABLE3_TRIANGLES} triangles",
                            command, [f"{r.backend}: {r.device}" for r in rows], table3_tables(rows))

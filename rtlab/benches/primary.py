@@ -101,5 +101,5 @@ def primary_tables(rows: list[BenchRow], title: str) -> list[Table]:
 
 
 def primary_markdown(rows: list[BenchRow], title: str, command: str) -> str:
-    """A markdown block for docs/benchmarks.md: command, device, date, then the table."""
+    """A markdown block for a fragment of docs/results/: command, device, date, then the table."""
     return report_markdown(title, command, [f"{r.backend}: {r.device}" for r in rows], primary_tables(rows, title))

@@ -222,6 +222,6 @@ NOTE = ("Registers and occupancy per kernel in launch order (shadows: render_sha
 
 
 def table5_markdown(rows: list[ShadingRow], command: str) -> str:
-    """Markdown for docs/benchmarks.md: command, devices, date, then the tables."""
+    """Markdown for a fragment of docs/results/: command, devices, date, then the tables."""
     return report_markdown("Table 5: shadows and secondary rays", command,
                            [f"{r.backend}: {r.device}" for r in rows], table5_tables(rows)) + "\n" + NOTE + "\n"

@@ -1,7 +1,8 @@
 """Tables of benchmark results, written once and shown two ways: a bench module gives each of its
 tables as columns and text cells (:class:`Table`); the command line prints them as rich tables
 (rtlab.cli.common.print_tables) and ``--md`` appends them as markdown (:func:`report_markdown`), with
-the command, date, host and devices above them, for docs/benchmarks.md.
+the command, date, host and devices above them: the blocks of docs/results/ (scripts/results_page.py
+makes docs/results.md of them).
 """
 from __future__ import annotations
 
@@ -44,8 +45,8 @@ def fmt(value, spec: str, missing: str = "-") -> str:
 
 
 def report_markdown(title: str, command: str, devices, tables: list[Table], intro: str = "") -> str:
-    """A markdown block for docs/benchmarks.md: title, the command, date, host and devices, then the
-    tables (each with its note above it)."""
+    """A markdown block for a fragment of docs/results/: title, the command, date, host and
+    devices, then the tables (each with its note above it)."""
     out = [f"### {title}", "", f"Command: `{command}`  ",
            f"Date: {datetime.date.today().isoformat()}; host: {platform.node()}; devices: {'; '.join(sorted(set(devices)))}",
            ""]

@@ -121,7 +121,8 @@ def table4_tables(rows: list[Table4Row]) -> list[Table]:
 
 
 def table4_markdown(rows: list[Table4Row], command: str) -> str:
-    """Markdown for docs/benchmarks.md: command, devices, the pivot (paper's layout), then details."""
+    """Markdown for a fragment of docs/results/: command, devices, the pivot (paper's layout), then
+    details."""
     size = rows[0].bench.size if rows else PAPER_SIZE
     return report_markdown(f"Table 4: traversal variants, primary rays, {size}x{size}", command,
                            [f"{r.bench.backend}: {r.bench.device}" for r in rows], table4_tables(rows))

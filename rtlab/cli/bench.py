@@ -21,7 +21,7 @@ bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: the paper's tabl
 BACKENDS = typer.Option("auto", help="comma-separated: opencl, cuda, auto")
 DEVICE = typer.Option(None, help="device name substring (OpenCL)")
 CHECK = typer.Option(True, help="error against the float64 reference")
-MD = typer.Option(None, help="append the tables as markdown to this file")
+MD = typer.Option(None, help="append the tables as markdown to this file (a block for docs/results/)")
 SIZE = typer.Option(1024, min=1, help="image width = height (paper: 1024)")
 VIEWS = typer.Option("preset", help="'preset' or bench views, e.g. far,fill,inside")
 CPU_NOTE = "CPU device: times are not comparable with the paper's GPU figures."
@@ -193,7 +193,7 @@ def bench_robustness(ctx: typer.Context,
                      conservative: str = typer.Option("default", help="RT_CONSERVATIVE: default, 0, 1 or 0,1"),
                      detail: bool = typer.Option(False, help="one row per case instead of per family"),
                      md: Optional[Path] = MD):
-    """Stiff and extreme cases (issue 4): leaks, misses, mismatches, ties, ids that differ between
+    """Stiff and extreme cases: leaks, misses, mismatches, ties, ids that differ between
     traversals, false hits, NaN t, t beyond its error bound, crashes and hangs of every triangle test
     x traversal against the float64 reference."""
     from ..benches.tables import report_markdown

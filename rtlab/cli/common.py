@@ -98,7 +98,7 @@ def print_tables(tables, width: int | None = None) -> None:
 
 
 def append_markdown(md: Optional[Path], text: str) -> None:
-    """Append a table's markdown to --md (for docs/benchmarks.md)."""
+    """Append a table's markdown to --md (a block for a fragment of docs/results/)."""
     if md:
         with open(md, "a") as f:
             f.write(text + "\n")

@@ -151,7 +151,7 @@ def scene_kdtree(scene: Scene, params: KdBuildParams | None = None, progress=Non
 
 
 # A scene whose coordinates stay within this many times its own extent of the origin may use the
-# BVH's fused box test (rt_bvh.h, RT_BVH_BOX_FMA). Since issue 13 that test pads o inv by its
+# BVH's fused box test (rt_bvh.h, RT_BVH_BOX_FMA). That test pads o inv by its
 # rounding bound, so it keeps every box the exact test keeps, at any distance (family 1's sphere at
 # 1.5e5 leaks less with it than with the exact test); far from the origin the pad, 2^-22 |o| / |d|,
 # only loosens its culling. The gate stays until that is measured on the GPU.

@@ -27,21 +27,18 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # What trace(), render() and render_whitted() run when no variant is named (rtlab.device.variants
 # .default_variant; a Variant() leaves its traversal, test and block to it too): the watertight test
 # (Woop et al. 2013) and its conservative traversal, which let no ray through shared edges and
-# vertices. Moller-Trumbore, the paper's test (Variant.paper()), lets 13-24 % of the rays aimed at edges
-# and vertices of the benchmark views through (docs/benchmarks.md). On a GPU (GPU_DEFAULT_VARIANT) the
-# BVH in 8x16 blocks: twice the kd stack's rays per second on most benchmark views, and tile-shaped
-# warps trace indoor views 18-19 % faster than 32x4 rows (H100, docs/benchmarks.md). On a CPU (PoCL,
-# CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones
-# (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH
-# together in SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same
-# tree, a node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a
-# batch that mixes both is traced each part its way. Against Embree's single thread on the six
-# benchmark views, same rays, 2 cores (docs/benchmarks.md, `rtlab bench cpu`): 2.3-4.7x on camera rays
-# and 1.0-1.8x on diffuse rays with both cores (per core 1.6-2.5x and 0.8-1.0x); the kd stack
-# traversal, the CPU default before, ran at 0.35-0.63x and 0.20-0.32x per core. Where the kernel tree
-# in use has no lane form of the watertight test (a student release stubs it: it would show lab 02's
-# solution), the CPU default is the scalar test on the kd stack (SCALAR_CPU_VARIANT). The lab steps and
-# the paper's benches name their variants and keep the paper's.
+# vertices (Moller-Trumbore, the paper's test, Variant.paper(), lets some through). On a GPU
+# (GPU_DEFAULT_VARIANT) the BVH in 8x16 blocks: the fastest traversal on the benchmark views, and
+# tile-shaped warps keep neighbouring rays together. On a CPU (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet",
+# which picks per packet of 8 consecutive rays: coherent ones (directions of one octant within about
+# 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
+# (diffuse bounces, rays in no order) go one by one through the same tree, a node's 8 children tested
+# in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch that mixes both is traced each
+# part its way. Where the kernel tree in use has no lane form of the watertight test (a student release
+# stubs it: it would show lab 02's solution), the CPU default is the scalar test on the kd stack
+# (SCALAR_CPU_VARIANT). The lab steps and the paper's benches name their variants and keep the paper's.
+# The figures behind these choices: docs/results.md (GPU trace() against the peers, the CPU against
+# Embree; `rtlab bench rays`, `rtlab bench cpu`).
 DEFAULT_VARIANT = CPU_DEFAULT_VARIANT
 
 
@@ -243,7 +240,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
     median device time. ``width``: the rays form an image of that many columns, row-major (as
     camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
-    order), so a warp traces neighbouring rays: up to 19 % faster on indoor views (docs/benchmarks.md).
+    order), so a warp traces neighbouring rays (faster on indoor views: docs/results.md).
     A packet traversal ("bvh-packet", the CPU default) takes consecutive rays anyway, a row segment of
     such an image. The hits are the same either way. ``lab``: run the lab steps' kernels for the variant
     (rtlab.device.variants.program_for) instead of the library's: the grader, the paper's benches."""

@@ -1,4 +1,4 @@
-"""Stiff and extreme cases for every triangle test and traversal (issue 4's robustness suite).
+"""Stiff and extreme cases for every triangle test and traversal: the robustness suite.
 
 Nine families of scenes and rays, each checked against the float64 reference
 (:func:`rtlab.reference.brute_force_trace`, or the bit-identical BVH :func:`reference_trace` when
@@ -20,7 +20,7 @@ brute force would be slow):
 8. ``bad_rays``: NaN/Inf in origin or direction, zero directions: **no crash, no hang**, all misses.
 9. ``random``: random rays on BUNNY and SPONZA (10^5 in the benchmark): mismatches.
 
-Issue 13 added three:
+Three on extreme placements and lengths:
 
 10. ``box_planes``: a grid of unit cubes around the origin, axis-aligned rays (and rays with one
     zero component) lying in its planes, zeros of both signs; a 1e-3 sphere in a 1e5 room, rays

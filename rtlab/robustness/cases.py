@@ -38,7 +38,7 @@ ROOM_HALF = 5.0e4
 SMALL_SPHERE = (1e-3, (1234.5, -987.25, 2345.125))   # radius, centre
 DIRECTION_LENGTHS = (1e-30, 1e-20, 1e-10, 1.0, 1e10, 1e20, 1e30)   # t of 1e-40 would overflow float32
 
-# Sizes: "test" keeps PoCL runs short; "bench" is the full suite (127² stairs, 10^5 rays).
+# Sizes: "test" keeps PoCL runs short; "bench" is the full suite (127² stairs, 10^5 rays).
 SIZES = {
     "test": dict(sphere_subdiv=4, sphere_rays=5000, plane_quads=8, plane_rays=5000, split_rays=1500,
                  stairs_grid=43, scaled_grid=22, slivers=60, sliver_rays=1500, grazing_rays=1500,
@@ -64,7 +64,7 @@ class Case:
     scene: Scene
     origins: np.ndarray          # (N, 3) float32
     directions: np.ndarray       # (N, 3) float32, not necessarily unit length
-    counts: tuple[str, ...]      # what this family is about (the wording)
+    counts: tuple[str, ...]      # what this family is about (the counts its goals name)
     must_hit: np.ndarray | None = None   # (N,) bool: rays that cannot escape (closed mesh, plane interior)
     bad: np.ndarray | None = None        # (N,) bool: NaN/Inf/zero-direction rays (must miss)
     target_tris: np.ndarray | None = None  # ids a must_hit ray must hit (None: any); others are leaks

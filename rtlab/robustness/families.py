@@ -13,7 +13,7 @@ from .watertight import (family_box_planes, family_plane, family_sphere, family_
 
 
 def family_cases(family: int, size: str = "test") -> list[Case]:
-    """The cases of one family (1-15) at size "test" (PoCL-friendly) or "bench" (the issue's sizes).
+    """The cases of one family (1-15) at size "test" (PoCL-friendly) or "bench" (the full sizes).
     Memoised: the same Scene objects come back, so their device uploads and trees are reused."""
     return _family_cases(int(family), size)
 

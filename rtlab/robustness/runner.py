@@ -51,7 +51,7 @@ class RobustnessRow:
         return int(bool(self.failure))
 
     def goal_violations(self) -> dict[str, int]:
-        """Counts that miss the issue's goal (meaningful for the watertight, conservative rows)."""
+        """Counts that miss the suite's goal (meaningful for the watertight, conservative rows)."""
         return {k: getattr(self, k) for k, fams in GOALS.items() if self.family in fams and getattr(self, k) > 0}
 
 

@@ -24,7 +24,8 @@ from ..errors import SceneError
 # low end, the products of three coordinate differences that every test forms (Moller-Trumbore's
 # t = e2.(s x e1) / det, the watertight test's edge functions times z) fall below float32's normal
 # range (1.2e-38) and flush or lose their digits; above the high end they overflow (3.4e38), and
-# float32 spacing exceeds 1e6. The watertight test held everywhere inside this range (issue 13).
+# float32 spacing exceeds 1e6. The watertight test held wherever it was tried inside this range when
+# the range was set (CHANGELOG.md, numerics and bad input, second round).
 MEANINGFUL_COORDINATES = (1e-12, 1e13)
 
 

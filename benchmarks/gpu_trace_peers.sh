@@ -1,12 +1,14 @@
 #!/bin/bash
-# The figures of issues 12 and 13 on the GPU machine in one call (CUDA and NVIDIA OpenCL):
-#  1. the robustness suite's families 10-12 (issue 13), markdown
-#  2. the default triangle test on the bench views, CUDA (issue 13)
+# trace() against the peers, with its numerics and the Whitted frame, on the GPU machine in one call
+# (CUDA and NVIDIA OpenCL):
+#  1. the robustness suite's families 10-12 (box planes, spawn offsets, direction lengths), markdown
+#  2. the default triangle test on the bench views, CUDA: rays through edges and vertices, and time
 #  3. rays through trace() on the peers' views: primary 1024² and 2048², diffuse 1024², the BVH with
 #     the library's watertight default and with Moller (the peers' kind of test), error beside time
-#  4. issue 5's Whitted frame (SPONZA, 3 bounces, wavefront) with launches timed by the fixed CUDA timing
+#  4. the Whitted frame (SPONZA, 3 bounces, wavefront, 8x8) with every launch timed alone
+# Figures: docs/results.md (GPU: trace() against the peers; GPU: Whitted frames; Numerics).
 # Usage (device run, carry .device; stage bunny.ply sponza kitchen conference dragon.ply):
-#   source .device/setup.sh && bash benchmarks/gpu_issue12.sh      -> $OUT/issue12.tgz
+#   source .device/setup.sh && bash benchmarks/gpu_trace_peers.sh      -> $OUT/trace_peers.tgz
 set -u
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"; L=$(mktemp -d)
 export PYTHONUNBUFFERED=1 COLUMNS=250
@@ -24,5 +26,5 @@ for be in cuda opencl; do
   step 60 python -m rtlab render sponza --backend $be --device NVIDIA --size 1024 --bounces 3 --materials paper \
       --shadows one-pass --traversal bvh --isect moller --schedule wavefront --block 8x8 --repeats 50 --out "$L/sponza_$be.png"
 done
-tar czf "$OUT/issue12.tgz" -C "$L" .
+tar czf "$OUT/trace_peers.tgz" -C "$L" .
 grep -E "^\\$|^exit|fps|Mrays" "$L/log.txt" | grep -v "^│" | tail -40
