@@ -32,7 +32,7 @@ test: setup-dev
 	$(BIN)/python -m pytest -q -n 2 --timeout=900
 
 bench-build: setup
-	$(BIN)/python benchmarks/bench_kdtree_build.py
+	$(BIN)/python experiments/bench_kdtree_build.py
 
 check-wheel: setup
 	bash scripts/check_wheel.sh

@@ -32,13 +32,13 @@ import numpy as np
 
 import rtlab
 from rtlab.backends import get_backend
-from rtlab.labs.trees import kernel_tree_summary
+from rtlab.course.kernel_sources import kernel_sources_summary
 from rtlab.reference.check import check_render
 from rtlab.paths import find_scene_file
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))      # keep <= 128 on PoCL
 backend = get_backend(os.environ.get("RTLAB_BACKEND", "opencl"))
-print(kernel_tree_summary())   # which kernel tree runs ($RTLAB_KERNEL_DIR or the installation's), its stubs
+print(kernel_sources_summary())   # which kernel sources run ($RTLAB_KERNEL_DIR or the installation's), its stubs
 print(backend.describe())
 
 # %% [markdown]

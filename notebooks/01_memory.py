@@ -33,14 +33,14 @@ import numpy as np
 
 import rtlab
 from rtlab.backends import get_backend
-from rtlab.labs.trees import kernel_tree_summary
+from rtlab.course.kernel_sources import kernel_sources_summary
 from rtlab.benches.memory import PLACEMENTS, bench_memory, compiler_report
 from rtlab.backends.nvcc import nvcc_available
 from rtlab.paths import find_scene_file
 
 SIZE = min(int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96)), 96)    # PoCL: keep <= 96
 backend = get_backend(os.environ.get("RTLAB_BACKEND", "opencl"))
-print(kernel_tree_summary())   # which kernel tree runs ($RTLAB_KERNEL_DIR or the installation's), its stubs
+print(kernel_sources_summary())   # which kernel sources run ($RTLAB_KERNEL_DIR or the installation's), its stubs
 print(backend.describe(), "| nvcc:", "yes" if nvcc_available() else "not installed (no register report)")
 scenes = [rtlab.load_scene("default", size=SIZE)]
 if find_scene_file("bunny.ply"):

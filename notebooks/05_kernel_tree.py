@@ -26,14 +26,14 @@ import matplotlib.pyplot as plt      # in Jupyter: static PNG figures (inline ba
 
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
-from rtlab.labs.trees import kernel_tree_summary
+from rtlab.course.kernel_sources import kernel_sources_summary
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import glass_scene
 from rtlab.device.whitted import render_whitted
 
 SIZE = int(os.environ.get("RTLAB_NOTEBOOK_SIZE", 96))
 backend = get_backend(os.environ.get("RTLAB_BACKEND", "opencl"))
-print(kernel_tree_summary())   # which kernel tree runs ($RTLAB_KERNEL_DIR or the installation's), its stubs
+print(kernel_sources_summary())   # which kernel sources run ($RTLAB_KERNEL_DIR or the installation's), its stubs
 scene = glass_scene(SIZE)
 print(backend.describe(), "|", scene.name, [m.name for m in scene.materials])
 

@@ -1,6 +1,6 @@
 """C constant expressions, evaluated as C does: the one evaluator for the kernels' ``#define``
 constants the host reads (rtlab.kernel_constants) and the lab preprocessor's ``#if`` conditions
-(rtlab.labs.cpp).
+(rtlab.course.cpp).
 
     evaluate(tokens("(16.0f * 5.9604645e-8f)"))        # 9.5367432e-07
     evaluate(tokens("RT_LANES * 2"), {"RT_LANES": 8})   # 16
@@ -76,6 +76,8 @@ def _apply(op: str, a, b):
             "+": lambda: a + b, "-": lambda: a - b, "*": lambda: a * b}[op]()
 
 
+# Why long: a recursive-descent parser as nested functions, one per C precedence level, sharing the token
+# position.
 def evaluate(toks: list[str], names: dict | None = None, unknown: int | None = None) -> int | float:
     """The value of the expression ``toks``. A name takes its value from ``names``; any other name is
     ``unknown`` (C's #if reads it as 0), or an ExprError when ``unknown`` is None."""

@@ -22,7 +22,7 @@ class VariantError(RtlabError):
 
 
 class LabError(RtlabError):
-    """A lab step, its grading config, a template or a submission is malformed (rtlab.labs)."""
+    """A lab step, its grading config, a template or a submission is malformed (rtlab.course)."""
 
 
 class InspectError(RtlabError):

@@ -30,6 +30,19 @@ def slab_interval(o, inv, lo, hi, t0, t1):
 
 
 @njit(cache=True, inline="always")
+def ray_scene_interval(o, d, scene_lo, scene_hi, tmin):
+    """A ray's inverse direction (inf for a zero component) and the part [t0, t1] of [tmin, inf)
+    inside the scene box; t0 > t1 (empty) for a ray with a non-finite part or a zero direction."""
+    inv = np.empty(3)
+    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
+        return inv, np.inf, -np.inf
+    for a in range(3):
+        inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
+    t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
+    return inv, t0, t1
+
+
+@njit(cache=True, inline="always")
 def moller_trumbore_t(o, d, v0, v1, v2):
     """t of the ray's hit on the triangle (v0, v1, v2) by Moller & Trumbore 1997 (edges inclusive,
     two-sided), NaN when there is none."""

@@ -10,7 +10,7 @@ changed in a header changes on the host too: no table to keep in sync by hand.
     from rtlab.kernel_constants import kernel_constant
     kernel_constant("RT_TRAVERSAL_BVH")      # 5
 
-Read from the reference kernels (``rtlab.paths.REFERENCE_KERNEL_DIR``), not a kernel tree swapped in
+Read from the reference kernels (``rtlab.paths.REFERENCE_KERNEL_DIR``), not kernel sources swapped in
 for a submission: these headers hold no student code, and the host's meaning of a code must not
 depend on a student's copy. Imports nothing from rtlab but ``paths``, so every layer may use it.
 """
@@ -76,7 +76,7 @@ def parse_defines(text: str, known: dict[str, int | float] | None = None) -> dic
 
 
 # A grading test process reads no reference file (they hold the solutions): the grader hands it the
-# table as JSON in this file instead (rtlab.labs.grader).
+# table as JSON in this file instead (rtlab.course.grader).
 CONSTANTS_FILE_ENV = "RTLAB_KERNEL_CONSTANTS"
 
 

@@ -40,7 +40,7 @@ IN_CHECKOUT = _is_source_tree(PROJECT_DIR)
 DATA_ROOT = PROJECT_DIR if IN_CHECKOUT else PACKAGE_DIR / "_data"
 # The reference kernels, always these (the grader compiles the reference from here)
 REFERENCE_KERNEL_DIR = DATA_ROOT / "kernels"
-# $RTLAB_KERNEL_DIR swaps in another kernel tree: the grader compiles a submission from a copy of
+# $RTLAB_KERNEL_DIR swaps in other kernel sources: the grader compiles a submission from a copy of
 # kernels/ with the student's files laid over it. The tree at startup; kernel_dir() is the one in use.
 KERNEL_DIR = Path(settings.get("RTLAB_KERNEL_DIR") or REFERENCE_KERNEL_DIR)
 SHARED_KERNEL_DIR = KERNEL_DIR / "shared"
@@ -49,16 +49,16 @@ _kernel_dir = KERNEL_DIR
 
 
 def kernel_dir() -> Path:
-    """The kernel tree this process compiles from (shared/, cuda/, opencl/)."""
+    """The kernel sources this process compiles from (shared/, cuda/, opencl/)."""
     return _kernel_dir
 
 
-# What a stubbed solution region holds (rtlab.labs.regions writes it): a student tree's unwritten functions
+# What a stubbed solution region holds (rtlab.course.regions writes it): a student tree's unwritten functions
 STUB_MARK = "TODO (lab "
 
 
 def tree_has_stubs(relpath: str) -> bool:
-    """Whether file ``relpath`` of the kernel tree in use (e.g. "shared/rt_intersect_lanes.h") holds a
+    """Whether file ``relpath`` of the kernel sources in use (e.g. "shared/rt_intersect_lanes.h") holds a
     stubbed solution region: a student release or a grading tree."""
     try:
         return STUB_MARK in (_kernel_dir / relpath).read_text(errors="replace")
@@ -67,13 +67,13 @@ def tree_has_stubs(relpath: str) -> bool:
 
 
 def use_kernel_dir(root) -> Path:
-    """Compile from the kernel tree at ``root`` from now on in this process (``rtlab render --kernels
+    """Compile from the kernel sources at ``root`` from now on in this process (``rtlab render --kernels
     DIR``, the grader's reference); returns the tree used before."""
     from .errors import VariantError
     global _kernel_dir
     root = Path(root).expanduser().resolve()
     if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
-        raise VariantError(f"{root} is not a kernel tree: it needs shared/ and opencl/ or cuda/ "
+        raise VariantError(f"{root} is not a folder of kernel sources: it needs shared/ and opencl/ or cuda/ "
                            f"(a copy of the project's kernels/ folder)")
     previous, _kernel_dir = _kernel_dir, root
     return previous

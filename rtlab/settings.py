@@ -28,7 +28,7 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting("RTLAB_SCENES", "folders searched first for scene files (os.pathsep-separated)"),
     Setting("RTLAB_CACHE", "folder of rtlab's caches (acceleration structures, scenes); default the per-user cache"),
     Setting("RTLAB_NO_CACHE", "1: build acceleration structures afresh, never read or write the disk cache"),
-    Setting("RTLAB_KERNEL_DIR", "another kernel tree to compile from (a student's; the grader sets it)"),
+    Setting("RTLAB_KERNEL_DIR", "another folder of kernel sources to compile from (a student's; the grader sets it)"),
     Setting("RTLAB_KERNEL_CONSTANTS", "a JSON file of the kernels' constants, read instead of the headers (the "
                                       "grader gives its test processes one)"),
     Setting("RTLAB_CL_OPTIONS", "extra OpenCL build options, space-separated"),
@@ -43,7 +43,7 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting("RTLAB_GRADE_ALL", "1: the grading tests grade every stored submission on every test (tests only)"),
     Setting("RTLAB_NOTEBOOK_SIZE", "the notebooks' image size in pixels (the test suite runs them at 64)"),
     Setting("RTLAB_VENV", "the grading bundle's virtual environment (setup.sh and run_autograder; default /opt/rtlab)"),
-    Setting("RTLAB_PAPER_BACKENDS", "the backends benchmarks/gpu_paper.sh measures (default: cuda opencl:NVIDIA)"),
+    Setting("RTLAB_PAPER_BACKENDS", "the backends experiments/gpu_paper.sh measures (default: cuda opencl:NVIDIA)"),
     Setting("PYOPENCL_CTX", "pyopencl's device choice, honoured when RTLAB_DEVICE is unset", external=True),
 )}
 

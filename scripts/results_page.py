@@ -52,7 +52,7 @@ How the figures are measured:
   triangle id, exactly (mismatches; ties are rays through shared edges, vertices or coplanar overlaps
   whose answer float32 cannot decide) and by t (the largest relative difference); images by PSNR and
   the ray tree of each pixel.
-- **Devices**: the lent H100 (NVIDIA H100 80GB HBM3, CUDA and NVIDIA's OpenCL; `benchmarks/gpu_*.sh`
+- **Devices**: the lent H100 (NVIDIA H100 80GB HBM3, CUDA and NVIDIA's OpenCL; `experiments/gpu_*.sh`
   run a topic's commands in one device call) and the 2-core development machine (PoCL on an AMD EPYC,
   shared with other work: its load is in the rows). The benchmark views and the peers' figures are
   those of `../shared/bench/README.md`.
@@ -73,7 +73,7 @@ def anchor(title: str) -> str:
 
 def commands(text: str) -> list[str]:
     """The commands a fragment's blocks name, shortened to what finds them: `rtlab bench rays`,
-    `benchmarks/ab_trace_configs.py`, `make render`, ..."""
+    `experiments/ab_trace_configs.py`, `make render`, ..."""
     found: list[str] = []
     for line in text.splitlines():
         if not line.startswith("Command:"):

@@ -75,7 +75,7 @@ def _imports(modules, lazy: bool) -> dict[str, set[str]]:
 def _rtlab_imports_outside_the_package():
     """(file, line, module, names) of every rtlab import, at any depth, in the tests, benchmarks,
     scripts and notebooks: the code that a rename inside the package leaves behind."""
-    for folder in ("tests", "benchmarks", "scripts", "notebooks", "labs"):
+    for folder in ("tests", "experiments", "scripts", "notebooks", "labs"):
         for path in sorted((PROJECT_DIR / folder).rglob("*.py")):
             for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
                 if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("rtlab"):
@@ -118,7 +118,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def _layer(module: str) -> str:
-    """rtlab.device.scene -> rtlab.device: the package a module belongs to (a top-level module is its own)."""
+    """rtlab.device.device_scene -> rtlab.device: the package a module belongs to (a top-level module is its own)."""
     return ".".join(module.split(".")[:2])
 
 
@@ -158,7 +158,7 @@ def test_packages_form_layers_even_counting_imports_inside_functions():
         layers.setdefault(_layer(module), set()).update(_layer(t) for t in targets if _layer(t) != _layer(module))
     assert not _cycles(layers), f"packages importing each other: {_cycles(layers)}"
     # the layers this project means to have, bottom to top
-    assert not layers["rtlab.backends"] & {"rtlab.device", "rtlab.accel", "rtlab.benches", "rtlab.labs", "rtlab.cli"}
+    assert not layers["rtlab.backends"] & {"rtlab.device", "rtlab.accel", "rtlab.benches", "rtlab.course", "rtlab.cli"}
     assert not layers["rtlab.reference"] & {"rtlab.device", "rtlab.backends", "rtlab.accel"}, \
         "the float64 reference must not use the code it checks"
     assert not layers["rtlab.scene"] - {"rtlab.errors", "rtlab.paths", "rtlab.kernel_constants"}
@@ -309,7 +309,7 @@ def _kernel_names(path: Path, seen: set | None = None) -> list[str]:
 
 def _pairs():
     steps = sorted(p.stem for p in (REFERENCE_KERNEL_DIR / "cuda").glob("*.cu"))
-    harness = PACKAGE_DIR / "labs" / "harness"
+    harness = PACKAGE_DIR / "course" / "harness"
     return ([(REFERENCE_KERNEL_DIR / "cuda" / f"{s}.cu", REFERENCE_KERNEL_DIR / "opencl" / f"{s}.cl") for s in steps]
             + [(harness / "camera_rays.cu", harness / "camera_rays.cl")])
 
@@ -324,8 +324,8 @@ def test_each_entry_kernel_is_written_once():
     """Entry kernels are written once for both languages (kernels/shared/rt_entry_*.h, the grader's
     harness headers): a .cu or .cl file defines none, and no kernel name is defined twice. A device
     function a language file defines is a lab's student region (01_memory.cu's place_ray_shared)."""
-    from rtlab.labs.trees import region_owners
-    headers = sorted(SHARED.glob("*.h")) + sorted((PACKAGE_DIR / "labs" / "harness").glob("*.h"))
+    from rtlab.course.kernel_sources import region_owners
+    headers = sorted(SHARED.glob("*.h")) + sorted((PACKAGE_DIR / "course" / "harness").glob("*.h"))
     programs = [p for pair in _pairs() for p in pair]
     in_programs = {p.name: _defined_kernels(p) for p in programs if _defined_kernels(p)}
     assert not in_programs, f"entry kernels defined in a language's own file (write them in kernels/shared): {in_programs}"
@@ -357,7 +357,7 @@ def test_thread_indices_come_from_the_port_layer():
     native = re.compile(r"\b(?:blockIdx|threadIdx|blockDim|gridDim|get_global_id|get_local_id|get_group_id|"
                         r"get_local_size|get_global_size)\b")
     files = sorted(SHARED.glob("*.h")) + sorted(REFERENCE_KERNEL_DIR.glob("*/*.c[lu]"))
-    files += sorted((PACKAGE_DIR / "labs" / "harness").glob("*"))
+    files += sorted((PACKAGE_DIR / "course" / "harness").glob("*"))
     outside = [f"{f.name}:{n}" for f in files if f.name != "rt_port.h"
                for n, line in enumerate(f.read_text().splitlines(), 1) if native.search(line)]
     assert not outside, f"thread indices outside rt_port.h: {outside}"
@@ -391,6 +391,34 @@ def test_loaders_are_given_their_buffer():
                 if re.search(rf"\b{loader}\(\s*[^,()]*\)", line):
                     wrong.append(f"{path.name}:{n}: {loader} without its buffer")
     assert not wrong, wrong
+
+
+SCENE_BUFFERS = tuple(LOADERS.values())
+_RAW_READ = re.compile(r"\b(" + "|".join(SCENE_BUFFERS) + r")\s*\[|\*\s*\(\s*(" + "|".join(SCENE_BUFFERS) + r")\s*\+")
+
+
+def _code_only(text: str) -> str:
+    """The source with comments blanked (line numbers kept)."""
+    text = re.sub(r"/\*.*?\*/", lambda m: re.sub(r"[^\n]", " ", m.group(0)), text, flags=re.S)
+    return re.sub(r"//[^\n]*", "", text)
+
+
+def _raw_scene_reads(path: Path) -> list[str]:
+    text = _code_only(path.read_text())
+    return [f"{path.name}:{n}: {line.strip()}" for n, line in enumerate(text.splitlines(), 1) if _RAW_READ.search(line)]
+
+
+def test_scene_buffers_are_read_through_their_loaders_only():
+    """Outside rt_memory.h (where the loaders are defined, one per memory placement) no kernel code
+    indexes a scene buffer itself: every read goes through load_node(nodes, i) and the like, so a
+    placement, the work counters of the grader and the texture paths see every read. The rule finds
+    an indexed read and pointer arithmetic."""
+    assert _RAW_READ.search("float4 v = tris[3 * i];") and _RAW_READ.search("int o = *(objects + k);")
+    assert not _RAW_READ.search("float4 v = load_tri_vertex(tris, 3 * i);")
+    files = [p for p in sorted(SHARED.glob("*.h")) if p.name != "rt_memory.h"]
+    files += sorted(REFERENCE_KERNEL_DIR.glob("*/*.c[lu]")) + sorted((PACKAGE_DIR / "course" / "harness").glob("*"))
+    raw = [r for p in files for r in _raw_scene_reads(p)]
+    assert not raw, raw
 
 
 # ---- the README's layout -----------------------------------------------------------------------
@@ -493,3 +521,67 @@ def test_import_rtlab_changes_nothing():
     seen = json.loads(out.stdout.strip().splitlines()[-1])
     assert seen["heavy"] == [] and seen["changed"] == [] and not seen["made"], seen
     assert seen["after_jit"] == "PASSIVE" and seen["made_after_jit"], f"rtlab.jit prepares the process: {seen}"
+
+
+# ---- functions a reader takes in at once ----------------------------------------------------------
+
+LONG_FUNCTION = 60       # lines, docstring included
+MANY_PARAMETERS = 8      # self/cls not counted
+
+
+def _unreasoned_functions(source: str, where: str) -> list[str]:
+    """'where:line name (why)' for each function over LONG_FUNCTION lines or MANY_PARAMETERS
+    parameters that does not say why: "Why long:" / "Why many parameters:" in its docstring or in the
+    comment lines right above it. A module docstring's "Why many parameters:" covers its numba
+    functions (nopython mode takes arrays one by one); a typer command's parameters are its
+    command-line options, so their number is the command's, not a design choice."""
+    tree = ast.parse(source)
+    lines = source.split("\n")
+    module_doc = ast.get_docstring(tree) or ""
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        a = node.args
+        params = [*a.posonlyargs, *a.args, *a.kwonlyargs] + [x for x in (a.vararg, a.kwarg) if x]
+        n_params = len(params) - (1 if a.args and a.args[0].arg in ("self", "cls") else 0)
+        n_lines = node.end_lineno - node.lineno + 1
+        first = min([node.lineno] + [d.lineno for d in node.decorator_list]) - 1
+        above = []
+        while first - 1 - len(above) >= 0 and lines[first - 1 - len(above)].strip().startswith("#"):
+            above.append(lines[first - 1 - len(above)])
+        stated = (ast.get_docstring(node) or "") + "\n".join(above)
+        numba = any("njit" in ast.unparse(d) for d in node.decorator_list)
+        typer = any(isinstance(d, ast.Call) and ast.unparse(d.func).startswith("typer.")
+                    for d in [*a.defaults, *a.kw_defaults] if d is not None)
+        if n_lines > LONG_FUNCTION and "Why long:" not in stated:
+            found.append(f"{where}:{node.lineno} {node.name} ({n_lines} lines, no 'Why long:')")
+        if (n_params > MANY_PARAMETERS and "Why many parameters:" not in stated and not typer
+                and not (numba and "Why many parameters:" in module_doc)):
+            found.append(f"{where}:{node.lineno} {node.name} ({n_params} parameters, no 'Why many parameters:')")
+    return found
+
+
+def test_long_functions_and_long_signatures_say_why():
+    """A function of rtlab over LONG_FUNCTION lines or MANY_PARAMETERS parameters states why it is one
+    function (most are split into steps over a named state instead)."""
+    found = [f for p in sorted(PACKAGE_DIR.rglob("*.py"))
+             for f in _unreasoned_functions(p.read_text(), str(p.relative_to(PROJECT_DIR)))]
+    assert not found, "\n".join(found)
+
+
+def test_the_function_rule_finds_what_it_should():
+    """The rule above can fail: a long function, a long signature (also under numba without the
+    module's reason) are found; stated reasons and typer options are not."""
+    body = "\n".join(f"    x{i} = {i}" for i in range(LONG_FUNCTION))
+    many = ", ".join(f"a{i}" for i in range(MANY_PARAMETERS + 1))
+    src = (f"def long_one():\n{body}\n\n"
+           f"def wide({many}):\n    pass\n\n"
+           f"@njit\ndef wide_numba({many}):\n    pass\n\n"
+           f"# Why long: a reason\ndef long_said():\n{body}\n\n"
+           f"def wide_said({many}):\n    '''Why many parameters: a reason'''\n\n"
+           f"def command({', '.join(f'a{i}=typer.Option(1)' for i in range(MANY_PARAMETERS + 1))}):\n    pass\n")
+    found = _unreasoned_functions(src, "x.py")
+    assert [f.split()[1] for f in found] == ["long_one", "wide", "wide_numba"], found
+    said = _unreasoned_functions('"""Why many parameters: numba"""\n' + src, "x.py")
+    assert [f.split()[1] for f in said] == ["long_one", "wide"], said

@@ -152,7 +152,7 @@ def test_sbvh_counting_traversal_finds_reference_hits():
 def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
     """The "bvh" traversal on the spatially split tree (uploaded in place of the default build)
     finds the float64 reference's hits."""
-    import rtlab.device.scene as device_scene_module
+    import rtlab.device.device_scene as device_scene_module
     from rtlab.device.kernels import Variant
     from rtlab.device.tracing import trace
     scene = _sliver_scene() if scene_name == "slivers" else rtlab.load_scene("default", size=16)
@@ -197,7 +197,7 @@ def test_traversal_bvh_keeps_spatial_splits_only_where_they_lower_the_sah(tmp_pa
     spatially split build where its SAH cost is SPLIT_MIN_GAIN lower (big triangles across small
     ones), the plain build otherwise (the default scene, whose cost the splits barely move)."""
     from rtlab.accel.bvh_stats import SPLIT_BUILD, SPLIT_MIN_GAIN, traversal_bvh
-    from rtlab.device.scene import bvh_accel
+    from rtlab.device.device_scene import bvh_accel
     for (v, f), want_split in ((_big_triangles_over_small_ones(), True), (_default_with_degenerates()[:2], False)):
         plain, split = build_bvh(v, f), build_bvh(v, f, SPLIT_BUILD)
         gain = 1.0 - sah_cost(split) / sah_cost(plain)

@@ -217,7 +217,7 @@ def test_loader_shapes_and_refusals():
 
 def test_fused_box_test_needs_coordinates_below_the_overflow_bound():
     """b inv with inv up to 2^64 must stay finite in float32: huge scenes keep the exact form."""
-    from rtlab.device.scene import near_origin
+    from rtlab.device.device_scene import near_origin
     from rtlab.scene.model import Camera, Material, Scene
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
     mk = lambda s: Scene("s", tri * s, np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32), [Material()],
@@ -308,7 +308,7 @@ def test_cpu_default_in_a_student_tree_is_the_scalar_test(tmp_path):
     CPU default is the scalar test, which calls the student's own intersect_ray_tri_watertight."""
     from rtlab.backends import get_backend
     from rtlab.device.tracing import DEFAULT_VARIANT, SCALAR_CPU_VARIANT, default_variant
-    from rtlab.labs.trees import copy_stubbed
+    from rtlab.course.kernel_sources import copy_stubbed
     from rtlab.paths import REFERENCE_KERNEL_DIR, use_kernel_dir
     backend = get_backend("opencl", "cpu")
     assert default_variant(backend) == DEFAULT_VARIANT

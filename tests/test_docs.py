@@ -97,7 +97,7 @@ def test_docs_and_readme_hold_no_issue_numbers():
 
 # ---- code, comments and --help ------------------------------------------------------------------
 
-AREAS = ["rtlab", "kernels", "benchmarks", "scripts", "notebooks", "labs", "tests", "Makefile", "pyproject.toml"]
+AREAS = ["rtlab", "kernels", "experiments", "scripts", "notebooks", "labs", "tests", "Makefile", "pyproject.toml"]
 
 
 def _area_files(area: str):

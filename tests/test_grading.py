@@ -7,7 +7,7 @@ compiles; UTF-16 and empty files get a message). The student release holds no so
 can be done from it; the Gradescope bundle grades in a simulated /autograder layout.
 
 Each stored submission holds the student's functions (signature and marked region); before grading,
-its regions are spliced into the current reference files (rtlab.labs.splice_regions), so these tests
+its regions are spliced into the current reference files (rtlab.course.splice_regions), so these tests
 follow changes to the code around the student's functions. Submissions whose point is outside the
 regions (an #include, a symlink, an encoding) are made here from the reference files. To keep this
 file fast on 2 cores, each submission is graded on the tests that tell its outcome apart;
@@ -31,15 +31,15 @@ import numpy as np
 import pytest
 
 from rtlab.backends.nvcc import nvcc_available
-from rtlab.labs import LabError, grade, lab_names, load_config, splice_regions, strip_regions
-from rtlab.labs.checks import check_camera_rays, speed_score
-from rtlab.labs.fixtures import hidden_seed, spec_for_run
-from rtlab.labs.grader import compile_message
-from rtlab.labs.processes import default_jobs
-from rtlab.labs.regions import STUBS, find_regions, stubbed_functions
-from rtlab.labs.results import gradescope_dict
-from rtlab.labs.submission import check_source, tree_rules
-from rtlab.labs.trees import (build_student_tree, find_submitted_file, kernel_files, region_owners, template_text,
+from rtlab.course import LabError, grade, lab_names, load_config, splice_regions, strip_regions
+from rtlab.course.checks import check_camera_rays, speed_score
+from rtlab.course.fixtures import hidden_seed, spec_for_run
+from rtlab.course.grader import compile_message
+from rtlab.course.processes import default_jobs
+from rtlab.course.regions import STUBS, find_regions, stubbed_functions
+from rtlab.course.results import gradescope_dict
+from rtlab.course.submission import check_source, tree_rules
+from rtlab.course.kernel_sources import (build_student_tree, find_submitted_file, kernel_files, region_owners, template_text,
                               tree_stubs)
 from rtlab.paths import PROJECT_DIR
 
@@ -225,7 +225,7 @@ def test_every_solution_region_belongs_to_a_lab_and_no_lab_needs_a_later_one():
     camera, stack traversal, the given Moller-Trumbore test) needs no later step's solution: the
     student tree of a lab stubs the later steps without breaking it."""
     from rtlab.device.kernels import SceneFeatures, Variant, build_defines
-    from rtlab.labs.cpp import Preprocessor
+    from rtlab.course.cpp import Preprocessor
     owners = region_owners()
     root = PROJECT_DIR / "kernels"
     for rel in kernel_files(root):
@@ -312,7 +312,7 @@ RULES = None
 def _rules():
     global RULES
     if RULES is None:
-        from rtlab.labs.checks import HARNESS_DIR
+        from rtlab.course.checks import HARNESS_DIR
         RULES = tree_rules(PROJECT_DIR / "kernels", sorted(HARNESS_DIR.glob("*")))
     return RULES
 
@@ -570,7 +570,7 @@ def test_killed_run_leaves_valid_results(tmp_path):
 
 
 def test_jobs_follow_the_cpus_and_memory_this_process_may_use(monkeypatch):
-    from rtlab.labs import processes
+    from rtlab.course import processes
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
     files = {"/sys/fs/cgroup/cpu.max": "300000 100000", "/proc/meminfo": "MemTotal:       67108864 kB",
              "/sys/fs/cgroup/memory.max": "max"}
@@ -587,8 +587,8 @@ def test_jobs_follow_the_cpus_and_memory_this_process_may_use(monkeypatch):
 def test_hidden_tests_draw_their_rays_from_the_secret():
     """A hidden test's seed comes from the bundle's secret (another one without it); visible tests keep
     the config's."""
-    from rtlab.labs.checks import KINDS
-    from rtlab.labs.fixtures import grading_scene
+    from rtlab.course.checks import KINDS
+    from rtlab.course.fixtures import grading_scene
     hidden = CONFIG.test("trace_split_plane_rays")
     visible = CONFIG.test("trace_random_rays")
     assert spec_for_run(visible, "a" * 32) == visible
@@ -632,7 +632,7 @@ def test_other_lab_reference_passes_and_template_fails(step, tmp_path):
     assert ref.score == ref.max_score, [(t.name, t.status, t.output) for t in ref.tests if not t.passed]
     if GRADE_ALL and nvcc_available():
         assert ref.max_score == config.max_score
-    from rtlab.labs import write_template
+    from rtlab.course import write_template
     write_template(step, tmp_path)
     tmpl = grade(step, tmp_path, tests=tests)
     for t in tmpl.tests:
@@ -666,7 +666,7 @@ def test_template_stubs_each_student_function_and_keeps_the_rest():
 # --------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def release(tmp_path_factory):
-    from rtlab.labs import write_release
+    from rtlab.course import write_release
     return write_release(tmp_path_factory.mktemp("release") / "rtlab-student")
 
 
@@ -689,7 +689,7 @@ def test_release_holds_no_solution(release):
                 assert body[1:] == [body[1], body[1][len("/* STUB: "):-len(" */")]], (f, r.function, body)
             else:
                 assert len(body) == 2 and body[1] in STUBS.values(), (f, r.function, body)
-    from rtlab.labs.trees import COURSE_REGIONS
+    from rtlab.course.kernel_sources import COURSE_REGIONS
     assert regions == sum(len(lf.functions) for s in lab_names() for lf in load_config(s).files) + len(COURSE_REGIONS)
     assert not (release / "tests").exists() and not list(release.rglob("grading-secret"))
     for step in lab_names():
@@ -699,7 +699,7 @@ def test_release_holds_no_solution(release):
         for t in load_config(step).tests:
             if t.visibility != "visible":
                 assert f'"{t.name}"' not in text
-    assert (release / "pyproject.toml").is_file() and (release / "rtlab" / "labs" / "grader.py").is_file()
+    assert (release / "pyproject.toml").is_file() and (release / "rtlab" / "course" / "grader.py").is_file()
     assert (release / "notebooks").is_dir() and "student release" in (release / "README.md").read_text()
 
 
@@ -730,13 +730,13 @@ def test_lab00_from_the_release_reaches_full_marks(release, tmp_path):
     r = rtlab("render", "default", "--size", 16, "--out", tmp_path / "r.png", "--traversal", "restart",
               "--isect", "moller", RTLAB_KERNEL_DIR=str(mine))
     out = " ".join(r.stdout.split())
-    assert r.returncode == 0 and f"kernel tree: {mine} (from $RTLAB_KERNEL_DIR)" in out, out
+    assert r.returncode == 0 and f"kernel sources: {mine} (from $RTLAB_KERNEL_DIR)" in out, out
     assert "calls traverse_kd_restart, still a stub" in out and "camera_ray," not in out, out
     # The course's rtlab rendering the student's tree (--kernels)
     r = rtlab("render", "default", "--size", 16, "--out", tmp_path / "r.png", "--traversal", "ropes",
               "--kernels", mine, PYTHONPATH=str(PROJECT_DIR))
     out = " ".join(r.stdout.split())
-    assert r.returncode == 0 and f"kernel tree: {mine} (from --kernels)" in out
+    assert r.returncode == 0 and f"kernel sources: {mine} (from --kernels)" in out
     assert "calls traverse_kd_ropes, still a stub" in out, out
     # Lab 03 in the same tree runs on the student's camera (lab 00)
     f = mine / "shared/rt_packet.h"
@@ -749,7 +749,7 @@ def test_lab00_from_the_release_reaches_full_marks(release, tmp_path):
 
 
 def _bundle(tmp_path) -> Path:
-    from rtlab.labs.bundle import write_bundle
+    from rtlab.course.bundle import write_bundle
     from .conftest import require_scene_file
     require_scene_file("bunny.ply")
     return write_bundle(STEP, tmp_path / "ag")
@@ -769,7 +769,7 @@ def test_bundle_has_gradescope_scripts(tmp_path):
     assert "pocl-opencl-icd" in setup and "--require-full-marks" in setup
     names = set(zipfile.ZipFile(zpath).namelist())
     assert {"setup.sh", "run_autograder", "pyproject.toml", f"labs/{STEP}/grading.toml", "grading-secret",
-            "AUTOGRADER.md", "kernels/shared/rt_types.h", "scenes/bunny.ply", "rtlab/labs/grader.py"} <= names
+            "AUTOGRADER.md", "kernels/shared/rt_types.h", "scenes/bunny.ply", "rtlab/course/grader.py"} <= names
     assert not any("/template/" in n for n in names)
     readme = (root / "AUTOGRADER.md").read_text()
     assert "Memory:" in readme and "Time:" in readme and "MB" in readme

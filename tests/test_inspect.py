@@ -21,7 +21,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def tree(scene):
-    from rtlab.device.scene import scene_kdtree
+    from rtlab.device.device_scene import scene_kdtree
     return scene_kdtree(scene)
 
 

@@ -134,7 +134,7 @@ def test_unhittable_triangles_stored_as_nan():
 
 
 def test_bytes_per_triangle_and_registration():
-    from rtlab.device.scene import TRI_DATA_BUILDERS
+    from rtlab.device.device_scene import TRI_DATA_BUILDERS
     from rtlab.errors import VariantError
     assert {t: tri_data_bytes(t) for t in ISECTS} == {"moller": 0, "wald": 48, "plucker": 96, "watertight": 0}
     assert {t: tri_bytes_read(t) for t in ISECTS} == {"moller": 48, "wald": 48, "plucker": 96, "watertight": 48}

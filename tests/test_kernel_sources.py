@@ -2,6 +2,8 @@
 structs agree in size."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import (SceneFeatures, Variant, build_defines, kernel_programs, kernel_source, lab_steps,
                                   unpaired_steps)
 from rtlab.device.layout import STRUCT_SIZES
+from rtlab.paths import PACKAGE_DIR
 
 DEFAULT_DEFINES = build_defines(Variant.paper(), SceneFeatures(stack_size=32, n_lights=2, n_materials=8))
 
@@ -68,3 +71,83 @@ def test_build_error_names_file_and_defines(backend, tmp_path):
     msg = str(e.value)
     assert "broken" in msg and "RT_STACK_SIZE=7" in msg
     assert "undeclared_name" in msg
+
+
+# ---- the host's constants against what the kernels were compiled with -----------------------------
+
+def _compiled_constants(backend, tmp_path, program: str, defines: dict, expected: dict) -> tuple[list[str], set]:
+    """Compile ``program`` with ``defines`` and a probe kernel that writes the compiled value of every
+    name in ``expected`` the program defines: ('NAME: host v, kernel w' for each that differs, the
+    names the program defines)."""
+    names = sorted(expected)
+    lines = []
+    for k, n in enumerate(names):
+        value = f"(int)({n})" if isinstance(expected[n], int) else f"rt_as_int((float)({n}))"
+        lines += [f"#ifdef {n}", f"    out[{2 * k}] = 1; out[{2 * k + 1}] = {value};", "#endif"]
+    src = tmp_path / (f"probe_{program}" + backend.extension)
+    src.write_text(f'#include "{kernel_source(program, backend.language)}"\n'
+                   "RT_KERNEL void probe_constants(RT_GLOBAL int *out)\n{\n" + "\n".join(lines) + "\n}\n")
+    out = backend.to_device(np.zeros(2 * len(names), np.int32))
+    backend.compile(src, defines).launch("probe_constants", (1,), (1,), [out])
+    got = backend.to_host(out, np.int32, 2 * len(names)).reshape(-1, 2)
+    wrong, defined = [], set()
+    for n, (is_defined, value) in zip(names, got.tolist()):
+        if not is_defined:
+            continue
+        defined.add(n)
+        host = expected[n]
+        want = int(np.int64(host).astype(np.uint32).view(np.int32)) if isinstance(host, int) else \
+            int(np.float32(host).view(np.int32))
+        if value != want:
+            seen = value if isinstance(host, int) else float(np.int32(value).view(np.float32))
+            wrong.append(f"{program}: {n}: host {host}, kernel {seen}")
+    return wrong, defined
+
+
+def test_host_constants_are_what_the_kernels_compiled(backend, tmp_path):
+    """Every constant the host reads from the headers (rtlab.kernel_constants: layout strides and
+    bits, variant codes, the trace block, the ray tree's sentinels) and every -D it passes holds,
+    inside the compiled library programs, the value the host uses: a host misreading of a header
+    expression, a header that redefines a -D, or a renamed constant fails here. Each constant is
+    seen in at least one of the programs compiled (every wide BVH, ropes, the kernel tree)."""
+    from rtlab.device.kernels import PACKET_LANES
+    from rtlab.device.tracing import TRACE_BLOCK
+    from rtlab.device.variants import CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, resolve_variant
+    from rtlab.kernel_constants import HEADERS, kernel_constants, parse_defines
+    from rtlab.paths import REFERENCE_KERNEL_DIR
+    header = kernel_constants()
+
+    def host_table(defines):
+        """The host's reading of the headers as the compiler sees them with these -D (a -D wins over an
+        #ifndef default; a name derived from a -D, such as RT_CONSERVATIVE, follows it)."""
+        table = dict(defines)
+        for name in HEADERS:
+            table = parse_defines((REFERENCE_KERNEL_DIR / "shared" / name).read_text(), table)
+        return table
+
+    features = SceneFeatures(stack_size=24, n_lights=2, n_materials=3)
+    builds = [("library_trace", GPU_DEFAULT_VARIANT), ("library_trace", CPU_DEFAULT_VARIANT),
+              ("library_trace", Variant(traversal="bvh8")), ("library_trace", Variant(traversal="bvh4")),
+              ("library_trace", Variant(traversal="ropes")), ("library_bounces", GPU_DEFAULT_VARIANT)]
+    wrong, seen = [], set()
+    for program, variant in builds:
+        variant = resolve_variant(variant, backend)
+        defines = build_defines(variant, features)
+        assert defines["RT_TRACE_THREADS"] == TRACE_BLOCK
+        if variant.spec.lanes:
+            assert defines["RT_LANES"] == PACKET_LANES == variant.spec.rays_per_item
+        bad, defined = _compiled_constants(backend, tmp_path, program, defines, host_table(defines))
+        assert set(defines) <= defined, f"{program}: -D names the program does not see: {set(defines) - defined}"
+        wrong += bad
+        seen |= defined
+        # what the host reads with kernel_constant(...) is what this build compiled (a -D it passes aside)
+        used = {n for f in PACKAGE_DIR.rglob("*.py") for n in re.findall(r'kernel_constant\("(\w+)"\)', f.read_text())}
+        compiled = host_table(defines)
+        wrong += [f"{program}: {n}: the host uses {header[n]}, this build compiles {compiled[n]}"
+                  for n in sorted(used - set(defines)) if compiled.get(n) != header[n]]
+    assert not wrong, wrong
+    assert not set(header) - seen, f"header constants no compiled program defines: {sorted(set(header) - seen)}"
+    # and the probe sees a difference where there is one
+    defines = build_defines(resolve_variant(GPU_DEFAULT_VARIANT, backend), features)
+    off = {**host_table(defines), "RT_TRACE_THREADS": TRACE_BLOCK + 1, "BVH_LEAF_BITS": header["BVH_LEAF_BITS"] + 1}
+    assert len(_compiled_constants(backend, tmp_path, "library_trace", defines, off)[0]) == 2

@@ -17,7 +17,7 @@ from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import (MEMORY_STEP, SceneFeatures, TRACE_THREADS, Variant, build_defines, build_options,
                            kernel_source, load_program, primary_step)
 from rtlab.device.rendering import render
-from rtlab.device.scene import device_scene
+from rtlab.device.device_scene import device_scene
 from rtlab.errors import VariantError
 from rtlab.reference.check import check_render
 
@@ -99,7 +99,7 @@ def test_texture_round_trip_reads_back_exactly(backend):
         _extremes_f4(rng, 3 * 11),                                            # normals
         rng.integers(0, 64, 11, dtype=np.int32),                              # tri_materials
     ]
-    from rtlab.device.scene import SCENE_ELEMENTS
+    from rtlab.device.device_scene import SCENE_ELEMENTS
     buffers = [backend.to_device(a) for a in arrays]
     textures = [backend.texture(b, dt, ch, len(a)) for b, a, (dt, ch) in zip(buffers, arrays, SCENE_ELEMENTS)]
     program = backend.compile(kernel_source(MEMORY_STEP, backend.language),
@@ -285,9 +285,9 @@ def absolute_includes(tree):
 
 
 def test_lab01_template_compiles_and_every_ray_misses(backend, default_scene, tmp_path):
-    """Lab step 01 with every student region replaced by its stub (rtlab.labs.regions): both languages
+    """Lab step 01 with every student region replaced by its stub (rtlab.course.regions): both languages
     still compile, and the stubs read as 'no geometry' (a root leaf with no triangles): every pixel misses."""
-    from rtlab.labs.regions import strip_regions
+    from rtlab.course.regions import strip_regions
     from rtlab.paths import KERNEL_DIR
     tree = tmp_path / "kernels"
     shutil.copytree(KERNEL_DIR, tree, ignore=shutil.ignore_patterns("__pycache__"))

@@ -15,7 +15,7 @@ TIMEOUT_S = 600          # per cell
 
 
 def test_one_notebook_per_lab_step():
-    from rtlab.labs import lab_names
+    from rtlab.course import lab_names
     names = {p.stem for p in NOTEBOOKS}
     assert names, "no notebooks"
     assert set(lab_names()) <= names, f"lab steps without a notebook: {sorted(set(lab_names()) - names)}"

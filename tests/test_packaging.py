@@ -122,8 +122,8 @@ def test_installed_copy_finds_its_data(installed):
 
 def test_installed_lab_template(installed):
     """rtlab lab template from the installed copy writes what the checkout's generator writes."""
-    from rtlab.labs.config import load_config
-    from rtlab.labs.template import template_files
+    from rtlab.course.config import load_config
+    from rtlab.course.template import template_files
     site, elsewhere = installed
     proc = _run_installed(site, elsewhere, "-m", "rtlab", "lab", "template", "00_primary", "--out", "tpl")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
@@ -148,13 +148,14 @@ def test_installed_render(installed):
 
 def test_no_writable_home_caches_in_tmp(tmp_path):
     """A home whose cache cannot be created (a file in the way: unwritable even for root) sends
-    $XDG_CACHE_HOME, and with it rtlab's, numba's and pyopencl's caches, to the temporary directory."""
+    $XDG_CACHE_HOME, and with it rtlab's, numba's and pyopencl's caches, to the temporary directory
+    (once the process needs one: numba through rtlab.jit here)."""
     blocker = tmp_path / "not-a-dir"
     blocker.write_text("")
     env = {k: v for k, v in os.environ.items() if k not in ("XDG_CACHE_HOME", "RTLAB_CACHE")}
     env.update(HOME=str(blocker / "home"), TMPDIR=str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
-    code = "import os, rtlab, rtlab.paths as p; print(os.environ['XDG_CACHE_HOME']); print(p.user_cache_dir())"
+    code = "import os, rtlab.jit, rtlab.paths as p; print(os.environ['XDG_CACHE_HOME']); print(p.user_cache_dir())"
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
                           cwd=Path(rtlab.__file__).parent.parent)
     assert proc.returncode == 0, proc.stderr

@@ -180,7 +180,7 @@ def test_every_family_has_cases_the_reference_agrees_with():
                 assert np.all(ref.tri >= 0), case.label
     sphere = family_cases(1, "test")[0]
     assert np.abs(sphere.scene.vertices).max() > 1e5
-    from rtlab.device.scene import near_origin
+    from rtlab.device.device_scene import near_origin
     assert all(near_origin(c.scene) for c in family_cases(10, "test")), "family 10 must take the fused box test"
     glass = [c for c in family_cases(11, "test") if c.label.startswith("glass")]
     assert np.abs(glass[-1].scene.vertices).max(axis=1).min() > 0.9e5
@@ -305,11 +305,12 @@ def test_default_cpu_variant_is_the_watertight_packet_traversal_with_the_scalar_
     triangle and t of the scalar kd stack and BVH traversals with the same test. The families hold
     coherent packets (traced together) and incoherent ones (ray by ray), and forcing every packet
     ray by ray (RT_PACKET_CONE above 1) changes nothing either."""
-    from rtlab.device.kernels import PACKET_LANES, Variant
+    from rtlab.device.kernels import PACKET_LANES
     from rtlab.device.tracing import default_variant, trace
     if backend.is_gpu():
         pytest.skip("the CPU default")
-    assert default_variant(backend) == Variant(traversal="bvh-packet", intersection="watertight")
+    chosen = default_variant(backend)
+    assert (chosen.traversal, chosen.intersection) == ("bvh-packet", "watertight"), chosen
     coherent = incoherent = 0
     for family in DEFAULT_FAMILIES:
         if family in FAMILY_SCENE_FILES:

@@ -3,7 +3,7 @@
 A kernel on PoCL is native code in the process that launches it. These tests run kernels that make
 system calls directly (inline ``syscall``, which the submission rule would refuse: here the point is
 what the process may do once code like that runs anyway) in a process confined exactly as a grading
-test process is (rtlab.labs.sandbox, rtlab.backends.opencl's prebuilt binaries), and check that
+test process is (rtlab.course.sandbox, rtlab.backends.opencl's prebuilt binaries), and check that
 starting a program or a process, opening a socket, signalling or tracing another process end the
 process (SIGSYS), that files outside its scratch folder can be neither read nor written, and that a
 test process holds none of the expected answers in its memory. Adversarial submissions graded end
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtlab.labs import grade, load_config
-from rtlab.labs.channel import ChannelError, FrameReader, expect_arrays, write_frame
-from rtlab.labs.sandbox import landlock_abi, seccomp_available
+from rtlab.course import grade, load_config
+from rtlab.course.channel import ChannelError, FrameReader, expect_arrays, write_frame
+from rtlab.course.sandbox import landlock_abi, seccomp_available
 from rtlab.paths import PROJECT_DIR
 
 from .test_grading import materialize, reference_files
@@ -116,7 +116,7 @@ from pathlib import Path
 scratch = Path(sys.argv[1])
 nr, a0, a1, a2 = (int(x) for x in sys.argv[2:6])
 strings = sys.argv[6:9]
-from rtlab.labs import sandbox
+from rtlab.course import sandbox
 sandbox.limit_process(2048)
 sandbox.apply_landlock(sandbox.FilePolicy(read=[*sandbox.system_read_paths(), scratch], write=[scratch],
                                           write_files=[Path("/dev/null")]))
@@ -245,13 +245,13 @@ def test_test_process_holds_no_expected_answer(tmp_path):
     """A test process, sandbox closed and kernels built, the instant before it runs the submission:
     none of the reference's answers anywhere in its memory (searched byte for byte through
     /proc/PID/mem), though its inputs are there; the same search finds the answers in the grader."""
-    from rtlab.labs.fixtures import prepare_test, spec_for_run
-    from rtlab.labs.grader import GradingRun
-    from rtlab.labs.processes import TestProcess
+    from rtlab.course.fixtures import prepare_test, spec_for_run
+    from rtlab.course.grader import GradingRun
+    from rtlab.course.processes import TestProcess
     config = load_config("00_primary")
     spec = config.test("trace_random_rays")
     run = GradingRun(config, PROJECT_DIR, [spec], "opencl", None, 1, 1.0, "x" * 32, 120.0, None, None)
-    from rtlab.labs.trees import build_student_tree
+    from rtlab.course.kernel_sources import build_student_tree
     run.tree = build_student_tree(config, PROJECT_DIR, run.work / "submission")
     prepared = prepare_test(spec_for_run(spec, run.secret))
     patterns = _answer_patterns(prepared)
@@ -322,7 +322,7 @@ def test_byte_order_mark_hides_no_include(tmp_path):
 def test_preprocessor_lists_what_the_lexer_might_miss(tmp_path):
     """The preprocessor's own dependency list is the include check's source of truth: a byte-order
     mark, an include built by a macro, a line splice: each file it opens outside the tree is named."""
-    from rtlab.labs.deps import find_clang, outside_includes
+    from rtlab.course.deps import find_clang, outside_includes
     if find_clang() is None:
         pytest.skip("no clang on PATH")
     tree = tmp_path / "kernels" / "shared"
@@ -367,7 +367,7 @@ def test_lexer_reads_as_clang_does():
     """A leading byte-order mark is skipped (the first line's directive is a directive); any other
     byte above 127 outside comments and strings is refused with its line; attributes that run code
     when a binary loads are refused."""
-    from rtlab.labs.submission import check_source, tree_rules
+    from rtlab.course.submission import check_source, tree_rules
     from rtlab.paths import REFERENCE_KERNEL_DIR
     rules = tree_rules(REFERENCE_KERNEL_DIR)
     rel = "kernels/shared/rt_kd_restart.h"
@@ -384,7 +384,7 @@ def test_student_wheel_holds_no_solution(tmp_path):
     kernels only; the same check finds every solution in the repository's kernels (what `pip install .`
     of the repository would ship)."""
     import zipfile
-    from rtlab.labs.release import build_wheel, wheel_solutions, write_release
+    from rtlab.course.release import build_wheel, wheel_solutions, write_release
     release = write_release(tmp_path / "release")
     wheel = build_wheel(release)
     assert wheel_solutions(wheel) == [] and any("_data/kernels/shared/rt_kdtree.h" in n
@@ -399,7 +399,7 @@ def test_student_wheel_holds_no_solution(tmp_path):
 def test_grader_reads_a_test_log_through_its_own_file(tmp_path):
     """A test process owns its folder: it can put a link to a secret where its log's name was. The
     grader quotes the log it opened, never what the name points to now."""
-    from rtlab.labs.processes import _log_tail
+    from rtlab.course.processes import _log_tail
     secret = tmp_path / "grading-secret"
     secret.write_text("s3cret-value\n")
     log_path = tmp_path / "test" / "log.txt"

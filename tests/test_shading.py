@@ -490,7 +490,7 @@ def test_student_regions_are_marked():
 def test_table5_bounce_rows_measure_every_schedule(backend, glass):
     """`rtlab bench shading`'s bounce rows: the tree, compacted, and the wavefront schedule, each
     row naming its backend, the wavefront image within one 8-bit step of the tree's."""
-    from rtlab.benches.shading import bench_bounces, table5_markdown
+    from rtlab.benches.shadows_bounces import bench_bounces, table5_markdown
     row = bench_bounces(glass, backend, 2, size=32, repeats=1, check_size=16, materials="file")
     e = row.extra
     assert e["same_image"] and e["wave_max_diff"] <= 1

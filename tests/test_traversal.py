@@ -19,7 +19,7 @@ from rtlab.accel.ropes import build_ropes
 from rtlab.device.kernels import SceneFeatures, TRAVERSALS, Variant, build_defines, kernel_source, primary_step
 from rtlab.device.layout import float4_rows
 from rtlab.device.rendering import render
-from rtlab.device.scene import DeviceScene, device_scene, padded_bounds, scene_kdtree
+from rtlab.device.device_scene import DeviceScene, device_scene, padded_bounds, scene_kdtree
 from rtlab.device.tracing import trace
 from rtlab.errors import VariantError
 from rtlab.reference import compare_hits, reference_trace
@@ -467,7 +467,7 @@ def test_fused_box_test_only_for_scenes_near_the_origin():
     """The BVH's fused slab form (RT_BVH_BOX_FMA) pads by the rounding of the origin's coordinates,
     which loosens its culling far from the origin: the loader takes it only where those stay within
     a few extents of the scene."""
-    from rtlab.device.scene import near_origin, scene_features
+    from rtlab.device.device_scene import near_origin, scene_features
     from rtlab.device.kernels import build_defines
     near = _scene_from_mesh("near", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     far = _scene_from_mesh("far", [[1e5, 0, 0], [1e5 + 1, 0, 0], [1e5, 1, 0]], [[0, 1, 2]])
@@ -552,7 +552,7 @@ def test_fused_box_test_keeps_rays_in_box_planes(backend, lo):
     """A grid of unit cubes near the origin (the BVH takes its fused box test, RT_BVH_BOX_FMA):
     axis-aligned rays lying in the grid's planes, the outer ones included, with +0 and -0 in their
     zero components, hit exactly as the exact box test and the float64 reference say."""
-    from rtlab.device.scene import near_origin
+    from rtlab.device.device_scene import near_origin
     scene = _cube_grid(4, lo)
     assert near_origin(scene)
     planes = np.arange(lo, lo + 5, dtype=np.float32)

@@ -68,8 +68,8 @@ def test_a_variant_leaves_the_rest_to_the_device():
 def test_the_papers_variant_is_named():
     assert Variant.paper() == PAPER_VARIANT == Variant("stack", "moller", block=(32, 4))
     assert Variant.paper(traversal="ropes").label() == "ropes/moller/global/32x4"
-    from rtlab.labs.checks.base import spec_variant
-    from rtlab.labs.config import load_config
+    from rtlab.course.checks.base import spec_variant
+    from rtlab.course.config import load_config
     # a grading test that names no variant runs the paper's, whatever the library's default is
     spec = next(t for t in load_config("00_primary").tests if t.kind == "trace_rays")
     assert spec_variant(spec) == PAPER_VARIANT
@@ -125,7 +125,7 @@ def test_whitted_runs_the_librarys_program_or_the_labs(backend):
 
 def test_the_library_compiles_every_traversal(backend):
     """Every traversal of the registry builds in the library's trace program, with its default test."""
-    from rtlab.device.scene import device_scene
+    from rtlab.device.device_scene import device_scene
     ds = device_scene(rtlab.load_scene("default", size=8), backend)
     for name in TRAVERSALS:
         v = resolve_variant(Variant(traversal=name), backend)

@@ -267,7 +267,7 @@ def test_wide_bvh_shadows_and_bounces_match_the_binary_bvh(backend, traversal):
 @pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
 def test_wide_bvh_counting_build_counts_its_reads(backend, traversal):
     """The grader's counting build (RT_COUNT_WORK) compiles with the traversal and counts its reads."""
-    from rtlab.device.scene import device_scene
+    from rtlab.device.device_scene import device_scene
     scene = rtlab.load_scene("default", size=16)
     o, d = camera_rays(scene.camera)
     ds = device_scene(scene, backend)

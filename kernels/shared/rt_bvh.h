@@ -107,7 +107,7 @@ RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
  * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
  * else the exact (b - o) * inv_d of clip_entering_ray_box (scenes far from the origin). */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
-#define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.scene.near_origin), where it costs no leaks */
+#define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.device_scene.near_origin), where it costs no leaks */
 #endif
 #define RT_BVH_EXIT_SCALE (1.0f + RT_T_PAD)
 RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, float t_hit, float *t_enter)

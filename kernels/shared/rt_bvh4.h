@@ -4,7 +4,7 @@
  * first and the others pushed with their entry distance, so that a popped child beyond the closest
  * hit so far is dropped (pop culling). Built by rtlab/accel/bvh4.py: the optimal collapse of
  * Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
- * not 8: on the benchmark views (benchmarks/bench_wide_bvh_quality.py, host mirrors) this traversal
+ * not 8: on the benchmark views (experiments/bench_wide_bvh_quality.py, host mirrors) this traversal
  * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
  * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box
  * dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes tested count.
@@ -17,7 +17,7 @@
  *               ~((first triangle row << BVH4_LEAF_BITS) | count)
  * An empty slot has the box (+inf, -inf), which no ray enters. Triangles as in rt_bvh8.h: 3 rows each,
  * (v0.xyz, triangle id bits), (v1.xyz, 0), (v2.xyz, 0), a leaf's contiguous. The root is row 0.
- * RT_STACK_SIZE is 3 x depth + 1 (rtlab.device.scene): a node pushes at most 3 children.
+ * RT_STACK_SIZE is 3 x depth + 1 (rtlab.device.device_scene): a node pushes at most 3 children.
  *
  * Box test: rt_bvh.h's fused form (one fma a plane, o inv moved outward by its rounding bound, zero
  * direction components as +-2^64 with the ray's length as pad), which keeps every box the exact test

@@ -12,7 +12,7 @@
  * meta of an inner child in slot s: 0b001 << 5 | (24 + s), its node at row x + 5 popc(imask below s);
  * of a leaf: unary triangle count << 5 | triangle offset, its triangles at rows y + 3 offset ...;
  * empty: 0. Triangles: 3 rows each, (v0.xyz, triangle id bits), (v1.xyz, 0), (v2.xyz, 0). The root is
- * node 0; RT_STACK_SIZE is the tree depth + 1 (rtlab.device.scene), so the stack cannot overflow.
+ * node 0; RT_STACK_SIZE is the tree depth + 1 (rtlab.device.device_scene), so the stack cannot overflow.
  *
  * Box test. A plane of slot j along an axis is p + q 2^e; its distance (p + q 2^e - o) / d is one fma,
  * (2^15 + q) s + off with s = 2^e / d and off = (p - o) / d - 2^15 s computed once a node: 2^15 + q is

@@ -10,7 +10,7 @@
  * closest hit so far (closer_hit's tie rule) stays with the caller.
  *
  * The watertight test's lane form would show lab 02's solution, so its bodies are the course's
- * regions (rtlab.labs.trees.COURSE_REGIONS): stubbed in every student tree, where the library's CPU
+ * regions (rtlab.course.kernel_sources.COURSE_REGIONS): stubbed in every student tree, where the library's CPU
  * default falls back to the scalar test (rtlab.device.tracing.default_variant).
  */
 #ifndef RT_INTERSECT_LANES_H

@@ -14,7 +14,7 @@
  *                     a dummy element for tests that need none (Moller-Trumbore)
  *   normals    float4 three vertex normals per triangle (only read when RT_SMOOTH_NORMALS)
  *   tri_materials int material id per triangle
- * rtlab/device/scene.py uploads them in this order.
+ * rtlab/device/device_scene.py uploads them in this order.
  *
  * RT_NODE_MEM == RT_MEM_TEXTURE reads all seven through the texture path instead, as the paper does
  * for the node, object, vertex and normal lists (§3.1.1): CUDA texture objects (tex1Dfetch) and
@@ -144,7 +144,7 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
  * the seven scene buffers with two counters a work-item (no atomics: each item its own): the
  * tree's reads (nodes, node data, object list) and the triangles' (vertices, per-triangle data).
  * A traversal that walks the whole tree reads many times what the reference reads on the same
- * rays (rtlab.labs.checks). The buffers take opaque types here, so a read that bypasses the
+ * rays (rtlab.course.checks). The buffers take opaque types here, so a read that bypasses the
  * loaders does not compile. Global placement only. */
 #if RT_NODE_MEM != RT_MEM_GLOBAL
 #error "RT_COUNT_WORK needs the global placement (RT_NODE_MEM == RT_MEM_GLOBAL)"

@@ -177,6 +177,7 @@ class BuildState(NamedTuple):
     pieces: np.ndarray
 
 
+# Why many parameters: a BuildState's fields, set once here.
 def _new_state(order, n, ref_lo, ref_hi, centroid, ref_tri, n_ids, vertices, faces, n_bins, spatial) -> BuildState:
     pool = order.shape[0]
     cap = max(1, 2 * pool)

@@ -18,6 +18,9 @@ its root cost is SPLIT_MIN_GAIN lower (the "bvh" traversal's rule, rtlab.accel.b
 
 Why one file: the three numba steps are one algorithm over one set of arrays (the full binary tree's
 boxes, children and counts, then the cost tables), each step reading what the one before wrote.
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
@@ -94,6 +97,8 @@ def _sweep_split(items, start, end, box_lo, box_hi, key, order, pre, suf):
     return start + best_k
 
 
+# Why long: one numba loop that splits every leaf and fills four outputs in node order; split up, each part
+# would pass the eight arrays again.
 @njit(cache=True)
 def _full_tree(child_lo, child_hi, child_ref, objects, tri_lo, tri_hi, leaf_bits, leaf_mask):
     """The binary BVH with every leaf split down to one triangle: node boxes (float32), children
@@ -289,6 +294,8 @@ def _leaf_tris(x, left, right, tri, out):
 
 
 # ---- 3. wide nodes, slots ordered by octant (Ylitie et al.) ---------------------------------------
+# Why long: one top-down pass that fills every per-node and per-slot array together: the slot layout reads in
+# one place.
 @njit(cache=True)
 def _wide_nodes(lo, hi, left, right, tri, count, leaf, split, inner_k, width, max_tris):
     """The wide tree: per node its box, per slot (kind 0 empty, 1 inner, 2 leaf) the child box, the

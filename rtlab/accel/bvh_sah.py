@@ -1,6 +1,10 @@
 """The binned SAH of the BVH builders (Wald 2007, "On fast construction of SAH-based bounding volume
 hierarchies"): a range's bounds, the best object split over ``bins`` bins per axis, the partition by
-it. rtlab.accel.bvh builds with these; rtlab.accel.bvh_splits adds spatial splits to them."""
+it. rtlab.accel.bvh builds with these; rtlab.accel.bvh_splits adds spatial splits to them.
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
+"""
 from __future__ import annotations
 
 import numpy as np

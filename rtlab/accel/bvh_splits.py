@@ -16,12 +16,15 @@ its parent reference's box (child node boxes nest in parent boxes). The referenc
 fixed size (the build's budget); a node can only split spatially into the free slots it owns
 (its *slack*), which a split shares between the children by their reference counts.
 
-Measured with benchmarks/bench_bvh_quality.py (512², GPU cost proxy 65 nodes + 45 triangles a ray
+Measured with experiments/bench_bvh_quality.py (512², GPU cost proxy 65 nodes + 45 triangles a ray
 against the build without spatial splits), alpha 1e-5 and 32 bins: SPONZA -33 % primary, -28 %
 diffuse; CONFERENCE +2 % primary, -17 % diffuse; DRAGON -5 %; BUNNY -0.5 %; KITCHEN +13 % primary
 (big walls chopped into pieces that sit deeper, so primary rays find their first hit later), -4 %
 diffuse. Off by default in BvhBuildParams; the "bvh" traversal takes the split tree where it lowers
 the SAH cost (rtlab.accel.bvh_stats.traversal_bvh, which also gives the H100 figures).
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
@@ -162,6 +165,8 @@ def best_spatial_split(order, start, end, ref_lo, ref_hi, ref_tri, vertices, fac
     return best_axis, best_k, best_cost
 
 
+# Why long: reference unsplitting and the in-place two-sided partition share every index; apart, they would pass
+# the 17 arrays again.
 @njit(cache=True)
 def spatial_partition(order, start, end, cap_end, axis, k, box, n_bins, ref_lo, ref_hi, centroid, ref_tri,
                       n_ids, vertices, faces, side, pieces):

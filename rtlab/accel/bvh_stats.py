@@ -1,5 +1,5 @@
 """Quality figures of a BVH from rtlab.accel.bvh, measured on the host: its SAH cost and a counting
-traversal that mirrors kernels/shared/rt_bvh.h (benchmarks/bench_bvh_quality.py, tests); and the
+traversal that mirrors kernels/shared/rt_bvh.h (experiments/bench_bvh_quality.py, tests); and the
 choice, by SAH cost, between the plain build and the spatial-split one for the "bvh" traversal
 (traversal_bvh).
 
@@ -9,13 +9,16 @@ first; a while-while loop tests both child boxes of an inner node against the se
 pushes the farther; a popped entry is entered without a new box test; a leaf tests all its
 triangles (Möller–Trumbore, here in float64 on the float32 data, closest hit, the lower id at an equal t). It counts
 inner-node visits and triangle tests per ray.
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..jit import njit, prange
-from ..geometry import moller_trumbore_t, slab_interval
+from ..geometry import moller_trumbore_t, ray_scene_interval, slab_interval
 from .bvh import LEAF_BITS, MAX_LEAF, Bvh, BvhBuildParams, load_or_build_bvh
 
 # Instructions a CUDA thread spends per inner-node visit and per triangle test (rt_bvh.h, SASS
@@ -34,7 +37,7 @@ SPLIT_MIN_GAIN = 0.02
 
 
 def traversal_bvh(vertices, faces, cache_dir=None) -> Bvh:
-    """The BVH the "bvh" traversal reads (rtlab.device.scene.bvh_accel): both builds from the
+    """The BVH the "bvh" traversal reads (rtlab.device.device_scene.bvh_accel): both builds from the
     on-disk cache or built, the spatial-split one kept where its SAH cost is SPLIT_MIN_GAIN lower."""
     plain, _ = load_or_build_bvh(vertices, faces, BvhBuildParams(), cache_dir)
     split, _ = load_or_build_bvh(vertices, faces, SPLIT_BUILD, cache_dir)
@@ -69,12 +72,8 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
     hit_tri = np.full(n, -1, np.int64)
     hit_t = np.full(n, np.inf)
     for i in prange(n):
-        o, d, inv = origins[i], directions[i], np.empty(3)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
-            continue
-        for a in range(3):
-            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        o, d = origins[i], directions[i]
+        inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, tmin)
         if not t0 <= t1:
             continue
         stack = np.empty(depth + 1, np.int64)
@@ -123,7 +122,7 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
 
 def traversal_counts(bvh: Bvh, vertices, faces, origins, directions, tmin: float = 0.0):
     """count_traversal of ``bvh`` for rays (origins, directions): (nodes, tris, tri ids, t) per ray."""
-    b = np.asarray(bvh.bounds, np.float64)           # grown as rtlab.device.scene.padded_bounds does
+    b = np.asarray(bvh.bounds, np.float64)           # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(b).max() * 2.0 ** -20 + (b[1] - b[0]).max() * 1e-6 + 1e-30
     box = np.stack([b[0] - pad, b[1] + pad])
     return count_traversal(bvh.child_lo.astype(np.float64), bvh.child_hi.astype(np.float64),

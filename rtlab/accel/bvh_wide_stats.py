@@ -2,7 +2,10 @@
 rtlab.accel.bvh_stats mirrors rt_bvh.h: the same visiting order on the same trees (the BVH8's
 quantised boxes decoded exactly, the BVH4's float boxes), boxes tested in float64 and triangles by
 Moller-Trumbore in float64. Per ray: node visits, child boxes tested, triangle tests, the closest
-triangle and its t (tests/test_wide_bvh.py, benchmarks/bench_wide_bvh_quality.py).
+triangle and its t (tests/test_wide_bvh.py, experiments/bench_wide_bvh_quality.py).
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
@@ -11,9 +14,11 @@ import numpy as np
 from ..jit import njit
 from .bvh4 import LEAF_BITS as BVH4_LEAF_BITS, NODE_ROWS as BVH4_NODE_ROWS, Bvh4
 from .bvh8 import NODE_ROWS, TRI_ROWS, Bvh8, decoded_boxes
-from ..geometry import moller_trumbore_t, slab_interval
+from ..geometry import moller_trumbore_t, ray_scene_interval, slab_interval
 
 
+# Why long: a float64 walk that follows rt_bvh8.h's traversal statement by statement, so the two read side by
+# side.
 @njit(cache=True)
 def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertices, faces, scene_lo, scene_hi,
                 depth, origins, directions, tmin, node_rows, tri_rows):
@@ -28,12 +33,7 @@ def _count_bvh8(box_lo, box_hi, meta, imask, child_row, tri_row, tri_ids, vertic
     hit_t = np.full(n, np.inf)
     for i in range(n):
         o, d = origins[i], directions[i]
-        inv = np.empty(3)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
-            continue
-        for a in range(3):
-            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, tmin)
         if not t0 <= t1:
             continue
         octinv = 7 - ((4 if np.signbit(d[0]) else 0) + (2 if np.signbit(d[1]) else 0)
@@ -97,7 +97,7 @@ def traversal_counts_bvh8(b: Bvh8, vertices, faces, origins, directions, tmin: f
     """_count_bvh8 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
     lo, hi = decoded_boxes(b)
     nodes = b.nodes()
-    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.scene.padded_bounds does
+    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
     tri_ids = np.asarray(b.tri_ids, np.int64)
     return _count_bvh8(lo, hi, nodes["meta"].astype(np.int64), nodes["imask"].astype(np.int64),
@@ -107,6 +107,8 @@ def traversal_counts_bvh8(b: Bvh8, vertices, faces, origins, directions, tmin: f
                        np.asarray(directions, np.float32).astype(np.float64), float(tmin), NODE_ROWS, TRI_ROWS)
 
 
+# Why long: a float64 walk that follows rt_bvh4.h's traversal statement by statement, so the two read side by
+# side.
 @njit(cache=True)
 def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo, scene_hi, depth, origins,
                 directions, tmin, node_rows, tri_rows, leaf_bits):
@@ -124,12 +126,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
     hi = np.empty(3)
     for i in range(n):
         o, d = origins[i], directions[i]
-        inv = np.empty(3)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d)) and d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 0.0):
-            continue
-        for a in range(3):
-            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
-        t0, t1 = slab_interval(o, inv, scene_lo, scene_hi, tmin, np.inf)
+        inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, tmin)
         if not t0 <= t1:
             continue
         stack_ref = np.empty(3 * depth + 4, np.int64)
@@ -186,7 +183,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
 
 def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0):
     """_count_bvh4 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
-    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.scene.padded_bounds does
+    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
     return _count_bvh4(b.planes().astype(np.float64), b.refs().astype(np.int64), np.asarray(b.tri_ids, np.int64),
                        b.tri_row0, np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),

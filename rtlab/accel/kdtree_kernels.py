@@ -6,6 +6,9 @@ and caches them beside this file as one unit; split across modules, a change to 
 invalidate the cached code of those that inline it. Boxes are float32 rows (lo x, y, z, hi x, y, z);
 a box stored here never holds -0.0 (adding +0.0 turns it into +0.0), so equal coordinates have
 equal bits in the exact sweep.
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
@@ -156,6 +159,8 @@ def _sort_keys(keys):
         sp += 2
 
 
+# Why long: Wald & Havran's sweep (2006, section 4.2) as one loop over the sorted events, as the paper writes
+# it.
 @njit(cache=True)
 def _sweep_axis(ref_box, ref_bits, start, n, node_box, a, w_lo, w_hi, events, inv_area, ct, ci,
                 eb, flat_cells):

@@ -105,7 +105,7 @@ class Texture:
 
 class Backend(ABC):
     name: str          # "opencl" or "cuda"
-    language: str      # which kernel tree: "opencl" (.cl) or "cuda" (.cu)
+    language: str      # which kernel sources: "opencl" (.cl) or "cuda" (.cu)
     extension: str
     device_name: str
     platform_name: str

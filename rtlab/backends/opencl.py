@@ -236,7 +236,7 @@ class OpenCLBackend(Backend):
 
     def prebuild_for_sandbox(self) -> None:
         """Build every compiled program's machine code now, while this process may still start the
-        system linker, and from here on launch only from it (rtlab.labs.sandbox): PoCL links a
+        system linker, and from here on launch only from it (rtlab.course.sandbox): PoCL links a
         kernel at its first launch otherwise. Does nothing on other OpenCL runtimes (they run
         kernels on a GPU, not as code in this process)."""
         if self.is_pocl():

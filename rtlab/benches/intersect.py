@@ -56,7 +56,7 @@ def intersect_loop(scene: Scene, backend, isect: str = "moller", n_tris: int = T
     """Run lab step 02: each pixel's camera ray against the first ``n_tris`` triangles with test
     ``isect``; the median of ``repeats`` timed launches after ``warmup`` untimed ones."""
     from ..device.tracing import unpack_hits
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     camera = camera or scene.camera
     n_tris = int(min(n_tris, scene.n_triangles))
     variant = Variant.paper(intersection=isect)
@@ -121,6 +121,7 @@ class Table3Row:
         return f"{e['mismatches']} mism., {e['ties']} ties, max rel dt {e['t_rel_err_max']:.1e}"
 
 
+# Why many parameters: the table's knobs, passed through from its `rtlab bench` command.
 def bench_table3(scene: Scene, backend, isects, size: int, n_tris: int = TABLE3_TRIANGLES, repeats: int = 5,
                  render_size: int | None = None, render_repeats: int = 5, check: bool = True) -> list[Table3Row]:
     """Table 3 rows for one scene on one backend; with ``render_size`` also the in-render effect."""

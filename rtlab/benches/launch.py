@@ -76,7 +76,7 @@ def time_render(scene: Scene, backend, variant: Variant, repeats: int = 10, warm
                 shared_bytes: int = 0, write_hits: bool = True) -> _Timed:
     """Device times of the render kernel (after ``warmup`` launches) and one launch's pixels and
     hit records; ``shared_bytes`` of dynamic shared memory a block (CUDA)."""
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     ds = device_scene(scene, backend)
     program = load_program(backend, primary_step(variant), variant, ds.features(variant),
                            RT_WRITE_HITS=int(write_hits))
@@ -102,6 +102,7 @@ def _diff(t: _Timed, base: _Timed) -> dict:
             "pixels": int(np.count_nonzero(t.pixels != base.pixels))}
 
 
+# Why many parameters: the table's knobs, passed through from its `rtlab bench` command.
 def _row(kind, scene, backend, variant, timed, base, features, shared_pad=0, note="", base_error=None) -> LaunchRow:
     """A row with the device's resources where it reports registers (CUDA, NVIDIA OpenCL), else
     nvcc's offline sm_90 figures for a GPU backend; none for a CPU device (no occupancy there)."""
@@ -152,7 +153,7 @@ def _fits(backend, variant) -> str:
 def block_sweep(scene: Scene, backend, blocks=FIG4_BLOCKS, orders=("rows", "morton"), repeats: int = 10,
                 check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 4 and ray order: every block shape (and order), the same rays, the same hits."""
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     base = base or Variant.paper()
     features = device_scene(scene, backend).features(base)
     base_timed, error = _base(scene, backend, base, repeats, check)
@@ -181,7 +182,7 @@ def block_sweep(scene: Scene, backend, blocks=FIG4_BLOCKS, orders=("rows", "mort
 def register_sweep(scene: Scene, backend, traversals=FIG5_TRAVERSALS, caps=FIG5_CAPS, repeats: int = 10,
                    check: bool = True, base: Variant | None = None, progress=None) -> list[LaunchRow]:
     """Fig. 5 by register caps: each traversal at each cap (one point a traversal on PoCL)."""
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     base = base or Variant.paper()
     rows = []
     for name in traversals:
@@ -211,7 +212,7 @@ def occupancy_sweep(scene: Scene, backend, traversals=("stack",), blocks_per_sm=
     the kernel, its registers and its rays stay the same."""
     if backend.name != "cuda":
         return []
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     base = base or Variant.paper()
     limits = backend.limits
     rows = []

@@ -73,7 +73,7 @@ def hit_difference(result, base) -> dict:
 def bench_memory(scene: Scene, backend, placements=None, repeats: int = 25, check: bool = True,
                  view: str = "preset", base: Variant | None = None, progress=None) -> list[MemoryRow]:
     """Every placement on ``scene``'s camera on ``backend`` (CUDA-only ones skipped elsewhere)."""
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     names = [n for n in (placements or PLACEMENTS) if backend.language == "cuda" or n not in CUDA_ONLY]
     base = base or Variant.paper()
     reference = _hits(scene, backend, base)

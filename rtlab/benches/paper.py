@@ -75,6 +75,7 @@ def _err(e: dict | None) -> dict:
             "psnr": e.get("psnr")}
 
 
+# Why many parameters: the table's knobs, passed through from its `rtlab bench` command.
 def _bench_row(section, b, paper=None, unit="fps", speedup=None, registers=None, occupancy=None, note="",
                differs=None) -> PaperRow:
     return PaperRow(section, b.scene + ("" if b.view == "preset" else f"/{b.view}"), b.variant, b.backend, b.device,
@@ -86,7 +87,7 @@ def _bench_row(section, b, paper=None, unit="fps", speedup=None, registers=None,
 # ---- sections --------------------------------------------------------------------------------
 
 def section_table2(ctx) -> SectionResult:
-    from ..device.scene import scene_kdtree
+    from ..device.device_scene import scene_kdtree
     from .build import table2
     entries = [(name, scene_kdtree(ctx.scene(name)), ctx.scene(name).n_triangles) for name in ctx.scenes]
     return SectionResult("table2", [], table2(entries).markdown())
@@ -130,7 +131,7 @@ def section_table4(ctx) -> SectionResult:
 
 
 def section_table5(ctx) -> SectionResult:
-    from .shading import bench_bounces, bench_shadows, table5_markdown
+    from .shadows_bounces import bench_bounces, bench_shadows, table5_markdown
     rows = []
     for name in [s for s in ctx.scenes if s in ("bunny", "sponza", "kitchen")]:
         for mode in ("one-pass", "two-pass"):
@@ -235,6 +236,7 @@ def device_dir(root: Path, backend) -> Path:
     return Path(root) / slug
 
 
+# Why many parameters: the table's knobs, passed through from its `rtlab bench` command.
 def run_paper(backend, out: Path, scenes=PAPER_SCENES, size: int = 1024, repeats: int = 10,
               sections=SECTIONS, check: bool = True, budget_s: float | None = None, force: bool = False,
               command: str = "rtlab bench paper", console=None) -> Path:

@@ -38,7 +38,7 @@ class Table4Row:
 def bench_table4(scene: Scene, backend, traversals=TABLE4_VARIANTS, repeats: int = 25, check: bool = True,
                  view: str = "preset", base: Variant | None = None, progress=None) -> list[Table4Row]:
     """One Table 4 row group: every traversal on ``scene``'s camera on ``backend``."""
-    from ..device.scene import device_scene
+    from ..device.device_scene import device_scene
     base = base or Variant.paper()
     rows = []
     for name in traversals:

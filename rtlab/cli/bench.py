@@ -28,7 +28,7 @@ CPU_NOTE = "CPU device: times are not comparable with the paper's GPU figures."
 
 
 @bench_app.callback()
-def bench_options(kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (default "
+def bench_options(kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel sources to compile (default "
                                                          "$RTLAB_KERNEL_DIR or the installation's)")):
     """Benchmarks: the paper's tables on the current device (rtlab bench --kernels DIR SECTION ...)."""
     use_kernels(kernels)

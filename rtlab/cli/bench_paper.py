@@ -56,7 +56,7 @@ def bench_shading(ctx: typer.Context,
                   materials: str = typer.Option("paper", help="materials of the bounce rows (rtlab.scene.materials)"),
                   md: Optional[Path] = MD):
     """The paper's Table 5 (shadows one-pass vs two-pass, 1-3 bounces) and specialised vs general kernels."""
-    from ..benches.shading import (NOTE, bench_bounces, bench_shadows, bench_specialisation, table5_markdown,
+    from ..benches.shadows_bounces import (NOTE, bench_bounces, bench_shadows, bench_specialisation, table5_markdown,
                                    table5_tables)
     bes = backend_list(backends, device)
     depths = int_list(bounces, "--bounces")

@@ -125,7 +125,7 @@ def kd_tree(scene):
 def traversal_structure(scene, backend, variant) -> None:
     """Build (or load from the caches) what ``variant`` traverses on ``backend`` under a status line:
     the kd-tree (kd_tree), or a BVH, saying so when numba compiles its builder on a first run."""
-    from ..device.scene import KD_FAMILIES, accel_family, device_scene
+    from ..device.device_scene import KD_FAMILIES, accel_family, device_scene
     if accel_family(variant.traversal) in KD_FAMILIES:
         kd_tree(scene)
         return
@@ -137,10 +137,10 @@ def traversal_structure(scene, backend, variant) -> None:
 
 
 def use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
-    """Switch to the kernel tree of --kernels (if given) and say which tree runs and what in it is
+    """Switch to the kernel sources of --kernels (if given) and say which tree runs and what in it is
     still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
-    from ..labs.trees import kernel_tree_summary
+    from ..course.kernel_sources import kernel_sources_summary
     from ..paths import use_kernel_dir
     if kernels is not None:
         use_kernel_dir(kernels)
-    console.print(escape(kernel_tree_summary(None if whitted else variant)), highlight=False)
+    console.print(escape(kernel_sources_summary(None if whitted else variant)), highlight=False)

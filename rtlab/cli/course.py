@@ -1,4 +1,4 @@
-"""The course's commands (rtlab.labs):
+"""The course's commands (rtlab.course):
 
     rtlab lab list | template STEP [--out DIR] | release OUT
     rtlab grade STEP SUBMISSION_DIR [--format gradescope|json|table] [--backend B] [--out results.json]
@@ -27,7 +27,7 @@ lab_app = typer.Typer(no_args_is_help=True, help="Lab steps: list them, write th
 def lab_list():
     """Lab steps with a grading config: tests, points, visibility."""
     from rich.table import Table
-    from ..labs.config import lab_names, load_config
+    from ..course.config import lab_names, load_config
     table = Table(title="rtlab lab steps")
     for col in ("step", "title", "files (functions)", "tests", "points"):
         table.add_column(col)
@@ -44,7 +44,7 @@ def lab_list():
 def lab_template(step: str = typer.Argument(..., help="lab step, e.g. 00_primary"),
                  out: Optional[Path] = typer.Option(None, help="folder to write (default STEP-template)")):
     """Write the step's template: the kernels' files of the step with the student's regions stubbed."""
-    from ..labs.template import write_template
+    from ..course.template import write_template
     for p in write_template(step, out or Path(f"{step}-template")):
         console.print(f"wrote {p}")
 
@@ -56,8 +56,8 @@ def lab_release(out: Path = typer.Argument(..., help="folder to write (new or em
                                                                  "to hold no solution: what a notebook server installs")):
     """Write the student release: the project with every solution stubbed and the visible tests only.
     (A wheel or `pip install .` of the course's repository ships every solution: give students this.)"""
-    from ..labs.release import build_wheel, write_release
-    from ..labs.trees import tree_stubs
+    from ..course.release import build_wheel, write_release
+    from ..course.kernel_sources import tree_stubs
     path = write_release(out, force=force)
     n = sum(len(v) for v in tree_stubs(path / "kernels").values())
     console.print(f"wrote {path}/ (pyproject.toml, README.md, rtlab/, kernels/ with {n} functions stubbed, "
@@ -67,6 +67,7 @@ def lab_release(out: Path = typer.Argument(..., help="folder to write (new or em
         console.print(f"wrote {whl} (no solution in it): `pip install {whl.name}` on a notebook server")
 
 
+# Why long: the command's options and what each of them asks for; the grading itself is rtlab.course.grader.
 def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g. 00_primary"),
                   submission: Optional[Path] = typer.Argument(None, help="folder with the student's files"),
                   bundle: bool = typer.Option(False, "--bundle", help="write a Gradescope autograder for STEP instead"),
@@ -86,11 +87,11 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
                                                           help="exit with status 1 unless every point is scored "
                                                                "(the bundle's self-check of the reference)")):
     """Grade a submission on a lab step: each test in its own process, on PoCL unless told otherwise."""
-    from ..labs.results import FORMATS, report_table, write_report
+    from ..course.results import FORMATS, report_table, write_report
     if bundle:
         if step is None:
             raise RtlabError("--bundle needs the lab step: rtlab grade --bundle 00_primary")
-        from ..labs.bundle import write_bundle
+        from ..course.bundle import write_bundle
         zpath = write_bundle(step, out)
         console.print(f"wrote {zpath.parent}/ (setup.sh, run_autograder, rtlab, scenes) and {zpath}")
         return
@@ -98,7 +99,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
         raise RtlabError("usage: rtlab grade STEP SUBMISSION_DIR (or rtlab grade --bundle STEP)")
     if fmt not in FORMATS:
         raise RtlabError(f"--format must be one of {', '.join(FORMATS)}, got '{fmt}'")
-    from ..labs.grader import grade, grading_failure_report
+    from ..course.grader import grade, grading_failure_report
     quiet = fmt != "table" and out is None     # JSON goes to stdout: keep it clean
     status = console if not quiet else Console(stderr=True)
 
@@ -112,7 +113,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
             write_report(partial, out, out_fmt)
 
     try:
-        from ..labs.fixtures import read_secret
+        from ..course.fixtures import read_secret
         cap_grader_memory(step)
         secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
@@ -128,7 +129,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
     if out is not None:
         write_report(report, out, out_fmt)
     if quiet:
-        from ..labs.results import full_dict, gradescope_dict
+        from ..course.results import full_dict, gradescope_dict
         data = full_dict(report) if fmt == "json" else gradescope_dict(report)
         sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
     else:
@@ -148,7 +149,7 @@ def cap_grader_memory(step: str) -> None:
     """The grading process's own memory cap (grading.toml grader_memory_mb, RLIMIT_DATA): what a
     submission makes the grader read (its files, its outputs) cannot take the machine."""
     import resource
-    from ..labs.config import load_config
+    from ..course.config import load_config
     limit = load_config(step).grader_memory_mb * 2 ** 20
     soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
     if soft == resource.RLIM_INFINITY or soft > limit:

@@ -29,7 +29,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
            compact: bool = typer.Option(False, help="with --bounces: compact live rays between levels"),
            schedule: str = typer.Option("tree", help="with --bounces: tree (the paper's depth-first kernel "
                                         "tree) or wavefront (one launch per level)"),
-           kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel tree to compile (a copy of "
+           kernels: Optional[Path] = typer.Option(None, "--kernels", help="kernel sources to compile (a copy of "
                                                   "kernels/ with your work; default $RTLAB_KERNEL_DIR or the "
                                                   "installation's)")):
     """Render a scene (primary rays, simple shading; with --shadows or --bounces Whitted ray tracing:
@@ -66,6 +66,7 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     console.print(f"wrote {out}")
 
 
+# Why many parameters: the render command's options, passed on.
 def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, materials: str, fresnel: str,
                          compact: bool, repeats: int, check: bool, out: Path, schedule: str = "tree"):
     """`rtlab render --shadows/--bounces`: render with a material preset, print the figures, write the PNG."""

@@ -24,7 +24,7 @@ def info():
                       "[green]ok[/]" if row["ok"] else f"[yellow]{escape(row['why'])}[/]")
     console.print(table)
     console.print(f"lab steps with kernels: {', '.join(lab_steps())}")
-    from ..labs import sandbox
+    from ..course import sandbox
     why = sandbox.seccomp_available()
     console.print("grader sandbox: " + escape(sandbox.describe(None if why else sandbox.sandbox_user())
                                                if not why else f"unavailable: {why}"))

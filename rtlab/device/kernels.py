@@ -61,7 +61,7 @@ def kernel_source(program: str, language: str) -> Path:
 
 @dataclass(frozen=True)
 class SceneFeatures:
-    """What a scene needs compiled in; derived by :func:`rtlab.device.scene.scene_features`."""
+    """What a scene needs compiled in; derived by :func:`rtlab.device.device_scene.scene_features`."""
     stack_size: int = 64          # kd-tree depth + 1
     smooth_normals: bool = False
     n_lights: int = 1

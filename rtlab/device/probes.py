@@ -14,7 +14,7 @@ from ..kernel_constants import kernel_constant
 from ..scene.model import Scene
 from .kernels import SceneFeatures, build_defines, kernel_source, load_program
 from .layout import float4_rows
-from .scene import device_scene
+from .device_scene import device_scene
 from .tracing import TraceResult, unpack_hits
 from .variants import Variant, program_for, resolve_variant
 

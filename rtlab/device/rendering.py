@@ -10,7 +10,7 @@ from ..backends import get_backend
 from ..scene.model import Scene
 from .kernels import load_program, rays_per_work_item
 from .layout import HIT_DTYPE
-from .scene import device_scene
+from .device_scene import device_scene
 from .tracing import TraceResult, require_scene, unpack_hits
 from .variants import Variant, program_for, resolve_variant
 
@@ -36,6 +36,7 @@ class RenderResult:
         return h * w / (self.median_ms * 1e-3) / 1e6
 
 
+# Why many parameters: the public call's keyword options, each with a default; a call names one or two.
 def render(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
            repeats: int = 1, warmup: int = 0, write_hits: bool = False, device: str | None = None,
            lab: bool = False) -> RenderResult:

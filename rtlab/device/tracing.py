@@ -15,7 +15,7 @@ from ..errors import RtlabError
 from ..scene.model import Scene
 from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
-from .scene import device_scene
+from .device_scene import device_scene
 from .variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, SCALAR_CPU_VARIANT, Variant,  # noqa: F401
                        default_variant, program_for, resolve_variant)
 
@@ -34,7 +34,7 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
 # (diffuse bounces, rays in no order) go one by one through the same tree, a node's 8 children tested
 # in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch that mixes both is traced each
-# part its way. Where the kernel tree in use has no lane form of the watertight test (a student release
+# part its way. Where the kernel sources in use has no lane form of the watertight test (a student release
 # stubs it: it would show lab 02's solution), the CPU default is the scalar test on the kd stack
 # (SCALAR_CPU_VARIANT). The lab steps and the paper's benches name their variants and keep the paper's.
 # The figures behind these choices: docs/results.md (GPU trace() against the peers, the CPU against
@@ -209,6 +209,8 @@ def ray_buffers(backend, n: int):
     return entry[1]
 
 
+# Why long: the public entry's checks of what it is given, each with its own message, before one launch.
+# Why many parameters: the public call's keyword options, each with a default; a call names one or two.
 def trace(scene: Scene, origins, directions, backend=None, variant: Variant | str | None = None,
           tmin: float = 0.0, tmax: float = np.inf, device: str | None = None,
           defines: dict | None = None, min_stack_size: int = 0, repeats: int = 1,

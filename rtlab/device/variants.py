@@ -42,7 +42,7 @@ class TraversalSpec:
     name: str
     header: str                 # kernels/shared/ header that implements it (rt_traverse.h includes it)
     function: str               # its traversal function there
-    structure: str              # what it reads (rtlab.device.scene.ACCEL_BUILDERS; "kd": the kd-tree as built)
+    structure: str              # what it reads (rtlab.device.device_scene.ACCEL_BUILDERS; "kd": the kd-tree as built)
     lab: str                    # the lab step that asks for it ("" for the course's own)
     rays_per_item: int = 1      # rays of trace_rays (pixels of a row of render_primary) a work-item takes
     lanes: bool = False         # SIMD lanes in a work-item (rt_lanes.h): RT_LANES children or rays

@@ -39,7 +39,7 @@ from ..backends import get_backend
 from ..errors import RtlabError
 from ..scene.model import Scene
 from .kernels import SceneFeatures, load_program
-from .scene import device_scene
+from .device_scene import device_scene
 from .tracing import TraceResult, require_scene
 from .variants import LAB_PROGRAMS, Variant, program_for, resolve_variant
 from .whitted_frames import FRAME_RUNNERS, NO_RAY, Launch  # noqa: F401  (NO_RAY: in a result's tree)
@@ -116,6 +116,7 @@ def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact:
     return defines
 
 
+# Why many parameters: the public call's keyword options, each with a default; a call names one or two.
 def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, size: int | None = None,
                    shadows: str = "one-pass", bounces: int = 0, compact: bool = False, repeats: int = 1,
                    warmup: int = 0, write_hits: bool = False, fresnel: str = "schlick",

@@ -102,6 +102,8 @@ def barycentric_slack(tri, directions, vertices, faces, tie_eps, tie_abs, origin
     return eps
 
 
+# Why long: the tie rule of the module docstring, step by step, each step a few numpy lines.
+# Why many parameters: the rays, the scene and the rule's tolerances (keywords with defaults).
 def compare_hits(ref: RefHits, tri, t, vertices, faces, origins, directions, tie_eps=1e-4,
                  tmin=0.0, tmax=np.inf, tie_abs=0.0, cond_ulps=4.0) -> HitComparison:
     """Compare a kernel's closest hits (tri: id, negative = miss; t) with the reference.

@@ -34,6 +34,9 @@ slab distances are widened by their worst-case relative rounding, plus an absolu
 above float64 rounding of the triangle t, and node boxes are grown a little in space, so rounding
 can never cull a box that holds the closest hit. Zero direction components are handled on their
 own (no 0 * inf = NaN).
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
@@ -138,6 +141,8 @@ def _box_entry(node_lo, node_hi, node, o, inv, t_lo, t_hi, slack):
     return np.inf
 
 
+# Why long: the reference's whole traversal in one numba function, on purpose: it shares no call with the code
+# it checks.
 @njit(cache=True)
 def _trace_one(node_lo, node_hi, node_child, node_first, node_count, tri_verts, tri_ids,
                scene_max_abs, ox, oy, oz, dx, dy, dz, tmin, tmax, stack_node, stack_t):

@@ -4,7 +4,11 @@ over arrays and as numba over one triangle. Both do the same float operations in
 the BVH tracer and brute force give bit-identical t. The edge functions decide whether a ray hits;
 t is the distance to the triangle's plane (:func:`plane_t_numpy`), not Woop's scaled barycentrics,
 whose rounding grows with the triangle's depth range along the ray (slivers seen at grazing angles).
-Which triangles can be hit at all is :func:`usable_triangle_mask`'s decision."""
+Which triangles can be hit at all is :func:`usable_triangle_mask`'s decision.
+
+Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
+nopython mode), so a step's inputs are its parameters.
+"""
 from __future__ import annotations
 
 import math
@@ -85,6 +89,7 @@ def plane_t_numpy(a, b, c, d):
     return num / den
 
 
+# Why many parameters: vertex and ray components apart, as its numba twin woop_hit takes them.
 def woop_numpy(a, b, c, d, kx, ky, kz, sx, sy, sz):
     """Woop's watertight test on corner-minus-origin arrays a, b, c of shape (..., 3) and the ray
     directions d (broadcast against them).

@@ -70,7 +70,7 @@ from .cases import FAMILY_NAMES, GOALS, SIZES, STAIR_STEPS, Case, box_mesh, case
 from .families import family_cases
 from .runner import (TABLE_COLUMNS, RobustnessRow, aggregate, count_case, robustness_table, row_cells,
                      run_robustness, trace_case)
-from .watertight import stairs_rays
+from .shared_edges import stairs_rays
 
 __all__ = ["FAMILY_NAMES", "GOALS", "SIZES", "STAIR_STEPS", "Case", "RobustnessRow", "TABLE_COLUMNS", "aggregate",
            "box_mesh", "case_scene", "count_case", "family_cases", "merge_meshes", "robustness_table", "row_cells",

@@ -241,7 +241,7 @@ def family_ties(n_rays: int, scenes=("sponza",), seed: int = 14) -> list[Case]:
     planes, exactly through shared edges' midpoints, and aimed at coplanar overlaps (see the module
     docstring); origins anywhere in the scene's box. Counted: ``differs`` (ids not the same in every
     traversal) and mismatches against the float64 reference."""
-    from ..device.scene import scene_kdtree
+    from ..device.device_scene import scene_kdtree
     rng = np.random.default_rng(seed)
     cases = []
     for name in scenes:

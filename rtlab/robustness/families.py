@@ -7,8 +7,8 @@ from ..errors import RtlabError
 from .cases import FAMILY_NAMES, SIZES, Case
 from .closest import family_slivers_grazing, family_spawned, family_ties
 from .inputs import family_bad_rays, family_dir_lengths, family_grazing, family_random, family_slivers
-from .shading import family_spawn_offsets
-from .watertight import (family_box_planes, family_plane, family_sphere, family_splits, family_stairs,
+from .spawn_offsets import family_spawn_offsets
+from .shared_edges import (family_box_planes, family_plane, family_sphere, family_splits, family_stairs,
                          family_stairs_scaled)
 
 

@@ -198,6 +198,7 @@ def _run_isolated(backend, family, size, case_index, combos, timeout_s):
     return [results[i] for i in range(len(combos))]
 
 
+# Why many parameters: the options of `rtlab bench robustness`, passed through.
 def run_robustness(backend, isects: Iterable[str] | None = None, traversals: Iterable[str] | None = None,
                    families: Iterable[int] = tuple(range(1, 10)), size: str = "test",
                    conservative: Iterable[int | None] = (None,), isolate: Iterable[int] = (8,),

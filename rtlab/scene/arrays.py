@@ -87,6 +87,7 @@ def _collapsed_warning(v64: np.ndarray, faces: np.ndarray, where: str) -> str | 
             f"the origin or scale it up")
 
 
+# Why many parameters: the public call's keyword options, each with a default; a call names one or two.
 def scene_from_arrays(vertices, faces=None, *, name: str = "mesh", material: Material | None = None,
                       materials: list[Material] | None = None, material_ids=None, vertex_normals=None,
                       camera: Camera | None = None, lights: list[Light] | None = None, size: int = 512) -> Scene:

@@ -115,7 +115,7 @@ class SceneView:
 def build_view(scene, depth: int = 6, pixel: tuple[int, int] | None = None, backend=None,
                ray_kinds=None, max_depth: int = 3) -> SceneView:
     """Everything to draw, without drawing it (no OpenGL needed)."""
-    from ..device.scene import scene_kdtree
+    from ..device.device_scene import scene_kdtree
     tree = scene_kdtree(scene)
     nodes, boxes, _ = kd_cells(tree, depth)
     view = SceneView(scene, tree, depth, nodes, boxes, pixel)

@@ -1,0 +1,92 @@
+"""A/B of trace() configurations on the benchmark rays, alternating round by round on the same rays
+(drift hits every configuration alike), with the error column and the ratio to the best peer.
+
+    python experiments/ab_trace_configs.py --backend cuda --kinds primary,diffuse --size 1024 \
+        --configs "bvh;bvh,call;bvh,r64;bvh,call,r64;bvh4,call" [--views ...] [--rounds 5] [--repeats 5]
+
+A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
+inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
+registers), ``bWxH`` (block), ``D=V`` (any -D). Time: median over the rounds of each round's best of
+--repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from rtlab.backends import get_backend
+from rtlab.benches.rays import make_rays, peer_figures
+from rtlab.device.tracing import default_variant, trace
+from rtlab.reference import compare_hits
+
+
+def parse_config(text: str, base):
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    variant, defines = base.with_(traversal=parts[0]), {}
+    for p in parts[1:]:
+        if p == "call":
+            defines["RT_REFINE_CALL"] = 1
+        elif p == "woop":
+            defines["RT_REFINE_T"] = 0
+        elif p.startswith("r") and p[1:].isdigit():
+            variant = variant.with_(max_registers=int(p[1:]))
+        elif p.startswith("b") and "x" in p:
+            w, h = p[1:].split("x")
+            variant = variant.with_(block=(int(w), int(h)))
+        elif "=" in p:
+            k, v = p.split("=")
+            defines[k] = int(v)
+        else:
+            raise SystemExit(f"unknown configuration part {p!r}")
+    return variant, defines
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--backend", default="cuda")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--views", default="bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside")
+    ap.add_argument("--kinds", default="primary,diffuse")
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--configs", default="bvh")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=5)
+    a = ap.parse_args(argv)
+    backend = get_backend(a.backend, a.device)
+    base = default_variant(backend)
+    configs = [(c, *parse_config(c, base)) for c in a.configs.split(";")]
+    peers = peer_figures()
+    print(f"device: {backend.name}: {backend.device_name}; base variant {base.label()}; {a.rounds} rounds x best of "
+          f"{a.repeats}")
+    print("| view | kind | " + " | ".join(c for c, _, _ in configs) + " | errors |")
+    print("|---|---|" + "---:|" * len(configs) + "---|")
+    for kind in a.kinds.split(","):
+        for view in a.views.split(","):
+            if kind == "diffuse" and view == "bunny/far":
+                continue
+            batch = make_rays(view, kind, a.size)
+            width = batch.size if kind == "primary" else None
+            best = {c: [] for c, _, _ in configs}
+            last = {}
+            for _ in range(a.rounds):
+                for c, variant, defines in configs:
+                    r = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=a.repeats,
+                              warmup=1, width=width, defines=defines)
+                    best[c].append(min(r.launches_ms))
+                    last[c] = r
+            peer = peers.get((view, kind, a.size), {}).get("best")
+            cells, errors = [], []
+            for c, _, _ in configs:
+                mrays = len(batch.origins) / (float(np.median(best[c])) * 1e-3) / 1e6
+                cells.append(f"{mrays:,.0f}" + (f" ({mrays / peer:.2f}x)" if peer else ""))
+                idx = batch.check_index
+                cmp_ = compare_hits(batch.reference, last[c].tri[idx], last[c].t[idx], batch.scene.vertices,
+                                    batch.scene.faces, batch.origins[idx], batch.directions[idx])
+                if cmp_.n_mismatch:
+                    errors.append(f"{c}: {cmp_.n_mismatch} mism.")
+            print(f"| {view} | {kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""What a kernel source includes, as the C preprocessor itself finds it: the source of truth for
+the include rule (rtlab.course.submission reads the text; this runs the compiler's preprocessor).
+
+A test process calls :func:`outside_includes` before each compile, with the compile's own include
+folders and defines: clang's ``-M -MG`` lists every file the preprocessor opens (a byte-order mark,
+a macro, a line splice or any other spelling the rule's lexer reads otherwise changes nothing
+here). Every file must lie in the kernel sources being compiled or the grader's harness folder
+(clang's own OpenCL header aside); anything else refuses the compile, naming the file. The clang
+that PoCL was built with (``clang-15`` for PoCL 3.1's LLVM 15) is preferred; any clang works.
+"""
+from __future__ import annotations
+
+import functools
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+TIMEOUT_S = 120        # the grader's setup limit stops it sooner
+MEMORY_SIGNS = ("bad_alloc", "out of memory", "Cannot allocate memory", "Allocation failed")
+
+
+@functools.lru_cache(maxsize=None)
+def find_clang() -> str | None:
+    """A clang on PATH: the newest versioned one (Debian names them clang-NN), else plain clang."""
+    found: dict[int, str] = {}
+    for folder in os.environ.get("PATH", "").split(os.pathsep):
+        try:
+            for f in Path(folder or ".").glob("clang-[0-9]*"):
+                m = re.fullmatch(r"clang-(\d+)", f.name)
+                if m and os.access(f, os.X_OK):
+                    found.setdefault(int(m.group(1)), str(f))
+        except OSError:
+            continue
+    return found[max(found)] if found else shutil.which("clang")
+
+
+@functools.lru_cache(maxsize=None)
+def _resource_dir(clang: str) -> Path | None:
+    try:
+        out = subprocess.run([clang, "-print-resource-dir"], capture_output=True, text=True, timeout=TIMEOUT_S)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return Path(out.stdout.strip()).resolve() if out.returncode == 0 and out.stdout.strip() else None
+
+
+def _make_deps(text: str) -> list[str]:
+    """The prerequisites of a make rule as clang writes it (continuations, escaped spaces)."""
+    body = text.replace("\\\n", " ")
+    _, _, rest = body.partition(":")
+    parts = re.split(r"(?<!\\)\s+", rest.strip())
+    return [p.replace("\\ ", " ").replace("$$", "$") for p in parts if p]
+
+
+def included_files(source: Path, include_dirs: list[Path], defines: dict, language: str) -> list[Path]:
+    """Every file the preprocessor opens for ``source`` (itself first); RuntimeError when it cannot say."""
+    clang = find_clang()
+    if clang is None:
+        raise RuntimeError("no clang on PATH to list what the kernel includes (Debian's PoCL brings clang-NN)")
+    lang = ["-x", "cl", "-cl-std=CL1.2"] if language == "opencl" else \
+        ["-x", "c++", "-D__CUDACC__", "-D__CUDA_ARCH__=900", "-nostdinc", "-nostdinc++"]
+    cmd = [clang, *lang, "-E", "-M", "-MG", "-MT", "x", *(f"-I{Path(d).resolve()}" for d in include_dirs),
+           *(f"-D{k}={v}" for k, v in sorted(defines.items())), str(Path(source).resolve())]
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT_S, errors="replace")
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"the preprocessor did not finish listing the includes of {source.name} in {TIMEOUT_S} s")
+    except OSError as e:
+        raise RuntimeError(f"cannot run {clang}: {e}")
+    if out.returncode != 0:
+        if any(sign in out.stderr for sign in MEMORY_SIGNS):
+            raise MemoryError(f"the preprocessor ran out of memory on {source.name}")
+        raise PreprocessorError(out.stderr)
+    return [Path(p) for p in _make_deps(out.stdout)]
+
+
+class PreprocessorError(RuntimeError):
+    """The preprocessor stopped on the source (its diagnostics: a #error, a bad #if...)."""
+
+
+def outside_includes(source: Path, include_dirs: list[Path], defines: dict, language: str,
+                     allowed: list[Path]) -> list[str]:
+    """Files the preprocessor opens for ``source`` outside ``allowed`` (and clang's own headers)."""
+    roots = [Path(a).resolve() for a in allowed]
+    clang = find_clang()
+    resource = _resource_dir(clang) if clang else None
+    if resource is not None:
+        roots.append(resource)
+    out = []
+    for f in included_files(source, include_dirs, defines, language):
+        p = f.resolve()
+        if not any(p == r or r in p.parents for r in roots):
+            out.append(str(f))
+    return out
