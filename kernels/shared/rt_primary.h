@@ -40,6 +40,18 @@ RT_FN Hit trace_one_loop(RT_SCENE_PARAMS, float4 origin, float4 direction, int n
 }
 
 #if RT_TRAVERSAL == RT_TRAVERSAL_BVH_PACKET
+/* Lane k's closest hit after a packet traversal, refined as trace_one's (a miss for a lane that was
+ * not live); ray is lane k's ray. */
+RT_FN Hit packet_lane_hit(RT_SCENE_PARAMS, const HitPacket *h, lanei live, int k, const Ray *ray)
+{
+    Hit hit = make_miss(ray->tmax);
+    if (li_get(live, k)) {
+        packet_get_hit(h, k, &hit);
+        refine_hit_t(RT_SCENE_ARGS, ray, &hit);
+    }
+    return hit;
+}
+
 /* The work of trace_rays with the packet traversal: rays first .. first + RT_LANES - 1 (those
  * below n_rays) traced as one packet where they are coherent (packet_is_coherent), else one by one
  * through the wide traversal (trace_one); each hit refined and written as trace_one's would be. */
@@ -65,14 +77,9 @@ RT_FN void trace_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_GLOBA
 #pragma unroll
     for (int k = 0; k < RT_LANES; ++k) {
         if (k < count) {
-            Hit hit = make_miss(lf_get(tmax, k));
-            if (li_get(live, k)) {
-                packet_get_hit(&h, k, &hit);
-                Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
-                                   f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
-                refine_hit_t(RT_SCENE_ARGS, &ray, &hit);
-            }
-            hits[first + k] = pack_hit(hit);
+            Ray ray = make_ray(f3(lf_get(ox, k), lf_get(oy, k), lf_get(oz, k)),
+                               f3(lf_get(dx, k), lf_get(dy, k), lf_get(dz, k)), lf_get(tmin, k), lf_get(tmax, k));
+            hits[first + k] = pack_hit(packet_lane_hit(RT_SCENE_ARGS, &h, live, k, &ray));
         }
     }
 }
@@ -130,11 +137,7 @@ RT_FN void render_packet(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONS
 #pragma unroll
     for (int k = 0; k < RT_LANES; ++k) {
         if (k < count) {
-            Hit hit = make_miss(rays[k].tmax);
-            if (li_get(live, k)) {
-                packet_get_hit(&h, k, &hit);
-                refine_hit_t(RT_SCENE_ARGS, &rays[k], &hit);
-            }
+            Hit hit = packet_lane_hit(RT_SCENE_ARGS, &h, live, k, &rays[k]);
             int i = y * frame->width + x0 + k;
             pixels[i] = pack_rgba8(shade_lambert(RT_SCENE_ARGS, frame, lights, materials, &rays[k], &hit));
 #if RT_WRITE_HITS
