@@ -237,3 +237,25 @@ def test_an_origin_beyond_float32_is_an_error(backend, sphere_scene):
     nan_o = RAYS_O.copy()
     nan_o[0] = np.nan                                    # NaN and inf origins stay misses, as documented
     assert trace(sphere_scene, nan_o, RAYS_D, backend=backend).tri[0] < 0
+
+
+def test_camera_rays_go_in_tiles_without_being_asked(backend, small_scene, monkeypatch):
+    """Rays made by camera_rays carry their image's width: trace() takes them in tiles (the grid
+    launch) with no width= given, and gives the hits of the same rays as plain arrays in row order.
+    What is no longer the image (a subset, o + t d) goes in the order given."""
+    from rtlab.device import tracing
+    grids = []
+    real = tracing._grid_launch
+    monkeypatch.setattr(tracing, "_grid_launch", lambda *a, **k: grids.append(a[5]) or real(*a, **k))
+    o, d = camera_rays(small_scene.camera)
+    assert o.image_width == d.image_width == small_scene.camera.width
+    variant = Variant(traversal="bvh")          # one ray a work-item: the variant that tiles
+    tiled = trace(small_scene, o, d, backend, variant)
+    assert grids == [small_scene.camera.width]
+    rows = trace(small_scene, np.asarray(o), np.asarray(d), backend, variant)
+    half = trace(small_scene, o[: len(o) // 2 + 1], d[: len(d) // 2 + 1], backend, variant)
+    moved = trace(small_scene, o + 0.0 * d, d, backend, variant)    # plain origins, directions still the image
+    assert grids == [small_scene.camera.width] * 2, "a subset goes in order; the image's directions still tile"
+    assert np.array_equal(tiled.tri, rows.tri) and np.array_equal(tiled.t, rows.t)
+    assert np.array_equal(half.tri, rows.tri[: len(o) // 2 + 1]) and np.array_equal(moved.tri, rows.tri)
+    assert type(o + d) is np.ndarray and getattr(o[::2], "image_width", None) is None

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..backends import get_backend
 from ..errors import RtlabError
-from ..scene.model import Scene
+from ..scene.model import Scene, image_width_of
 from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .device_scene import device_scene
@@ -242,11 +242,13 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
     median device time. ``width``: the rays form an image of that many columns, row-major (as
     camera_rays gives them); the kernel then takes them in tiles of ``variant.block`` (and its ray
-    order), so a warp traces neighbouring rays (faster on indoor views: docs/results.md).
+    order), so a warp traces neighbouring rays (faster on indoor views: docs/results.md). Rays made
+    by rtlab.camera_rays carry their image's width, so they go in tiles without ``width``.
     A packet traversal ("bvh-packet", the CPU default) takes consecutive rays anyway, a row segment of
     such an image. The hits are the same either way. ``lab``: run the lab steps' kernels for the variant
     (rtlab.device.variants.program_for) instead of the library's: the grader, the paper's benches."""
     scene = require_scene(scene)
+    implied_width = image_width_of(directions, origins) if width is None else None
     origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
@@ -274,6 +276,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     items = -(-n // lanes)                     # the pixels of a row segment when the rays are an image
     if width is not None and (int(width) <= 0 or n % int(width)):
         raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
+    if implied_width and not n % implied_width and name in GRID_PROGRAMS:
+        width = implied_width               # camera_rays' rays: tiles without being asked
     if program.defines.get("RT_TRACE_THREADS") != TRACE_BLOCK:    # it sizes the kernel's block-wide ray array
         raise RtlabError(f"{name} was compiled for trace_rays blocks of {program.defines.get('RT_TRACE_THREADS')} "
                          f"threads, launched with {TRACE_BLOCK}")

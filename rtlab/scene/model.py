@@ -250,9 +250,38 @@ def scene_fingerprint(scene: Scene) -> bytes:
     return h.digest()
 
 
+class CameraRays(np.ndarray):
+    """An (N, 3) array of camera rays that remembers the width of its image (``image_width``), so that
+    rtlab.trace takes such rays in tiles without being told ``width=`` (a warp then traces
+    neighbouring pixels). Otherwise a plain ndarray. Only what is still the whole image keeps the
+    width (a copy, a view of the same shape): arithmetic (``o + t * d``) and a subset give plain
+    arrays, which trace() takes in the order given. The hits are the same either way."""
+    image_width: int | None
+
+    def __array_finalize__(self, obj):
+        same = obj is not None and getattr(obj, "shape", None) == self.shape
+        self.image_width = getattr(obj, "image_width", None) if same else None
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        plain = [x.view(np.ndarray) if isinstance(x, CameraRays) else x for x in inputs]
+        if "out" in kwargs:
+            kwargs["out"] = tuple(x.view(np.ndarray) if isinstance(x, CameraRays) else x for x in kwargs["out"])
+        return getattr(ufunc, method)(*plain, **kwargs)
+
+
+def image_width_of(*arrays) -> int | None:
+    """The image width the first of ``arrays`` that is CameraRays carries, else None."""
+    for a in arrays:
+        w = getattr(a, "image_width", None)
+        if w:
+            return int(w)
+    return None
+
+
 def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The primary rays of every pixel in float32, row-major from the top-left pixel, built with the
-    same operations as camera_ray() in kernels/shared/rt_types.h (the kernels' own rays)."""
+    same operations as camera_ray() in kernels/shared/rt_types.h (the kernels' own rays). Both are
+    :class:`CameraRays`: they carry the image's width, which rtlab.trace uses to trace them in tiles."""
     eye, u, v, w = camera.basis()
     x = np.arange(camera.width, dtype=np.float32)
     y = np.arange(camera.height, dtype=np.float32)
@@ -264,4 +293,6 @@ def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     d = d * (one / np.sqrt((d * d).sum(axis=-1, dtype=np.float32)))[..., None]
     d = d.reshape(-1, 3).astype(np.float32)
     o = np.broadcast_to(eye, d.shape).astype(np.float32)
+    o, d = o.view(CameraRays), d.view(CameraRays)
+    o.image_width = d.image_width = int(camera.width)
     return o, d
