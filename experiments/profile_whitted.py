@@ -6,7 +6,8 @@ list of render configurations, median of several frames.
 
 A configuration is ``traversal[:option...]`` with options ``compact``, ``noshadows``, ``twopass``,
 ``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level),
-``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position).
+``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position),
+``RT_NAME=V`` (any -D).
 """
 from __future__ import annotations
 
@@ -42,6 +43,9 @@ def parse_config(text: str):
             kw["intersection"] = p[6:]
         elif p.startswith("fma"):
             opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
+        elif "=" in p and p.startswith("RT_"):
+            name, value = p.split("=")
+            opts["defines"][name] = int(value)
         else:
             raise SystemExit(f"unknown option {p!r} in {text!r}")
     return Variant.paper(**kw), opts

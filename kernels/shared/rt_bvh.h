@@ -129,6 +129,18 @@ RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, f
 #endif
 }
 
+/* RT_BVH_LEAF_TRIS 1: tri_data holds the leaves' triangles in the order of objects, three float4 rows a
+ * reference (v0 with the triangle id's bits in w, v1, v2; rtlab.accel.tri_data.leaf_tris), so a leaf
+ * reads its vertices from consecutive rows, with no objects[] read between (a dependent load a
+ * triangle, in a kernel bound by latency). The loader sets it for the tests that read vertices
+ * (rtlab.device.kernels.leaf_tris); objects and tris stay valid for code that reads them. */
+#ifndef RT_BVH_LEAF_TRIS
+#define RT_BVH_LEAF_TRIS 0
+#endif
+#if RT_BVH_LEAF_TRIS && RT_ISECT != RT_ISECT_MOLLER && RT_ISECT != RT_ISECT_WATERTIGHT
+#error "RT_BVH_LEAF_TRIS holds vertices: the Moller and watertight tests only"
+#endif
+
 /* Test the triangles of leaf ref `leaf`; returns 1 when an any-hit query may stop. */
 RT_FN int intersect_bvh_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit, int any_hit)
 {
@@ -136,7 +148,15 @@ RT_FN int intersect_bvh_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit
     int first = bits >> BVH_LEAF_BITS;
     int count = bits & ((1 << BVH_LEAF_BITS) - 1);
     for (int i = 0; i < count; ++i) {
-        if (intersect_tri(RT_SCENE_ARGS, ray, load_object(objects, first + i), hit) && any_hit)
+#if RT_BVH_LEAF_TRIS
+        int row = 3 * (first + i);
+        float4 v0 = load_tri_data(tri_data, row);
+        int hit_now = intersect_tri_vertices(ray, xyz(v0), xyz(load_tri_data(tri_data, row + 1)),
+                                             xyz(load_tri_data(tri_data, row + 2)), rt_as_int(v0.w), hit);
+#else
+        int hit_now = intersect_tri(RT_SCENE_ARGS, ray, load_object(objects, first + i), hit);
+#endif
+        if (hit_now && any_hit)
             return 1;
     }
     return 0;

@@ -275,6 +275,17 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
     /* END SOLUTION */
 }
 
+/* The test chosen by RT_ISECT among those that read the vertices (Moller, watertight), on vertices
+ * already loaded (from tris, or from a BVH's leaf-ordered copy: rt_bvh.h's RT_BVH_LEAF_TRIS). */
+RT_FN int intersect_tri_vertices(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
+{
+#if RT_ISECT == RT_ISECT_WATERTIGHT
+    return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
+#else
+    return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
+#endif
+}
+
 /* The test chosen by RT_ISECT, on triangle tri of the scene (the paper's Table 3 variable). */
 RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
 {
@@ -294,14 +305,8 @@ RT_FN int intersect_tri(RT_SCENE_PARAMS, const Ray *ray, int tri, Hit *hit)
     acc.m2 = load_tri_data(tri_data, RT_PLUCKER_ROWS * tri + 5);
     return intersect_ray_tri_plucker(ray, &acc, tri, hit);
 #else
-    float3 v0 = xyz(load_tri_vertex(tris, tri, 0));
-    float3 v1 = xyz(load_tri_vertex(tris, tri, 1));
-    float3 v2 = xyz(load_tri_vertex(tris, tri, 2));
-#if RT_ISECT == RT_ISECT_WATERTIGHT
-    return intersect_ray_tri_watertight(ray, v0, v1, v2, tri, hit);
-#else
-    return intersect_ray_tri_moller(ray, v0, v1, v2, tri, hit);
-#endif
+    return intersect_tri_vertices(ray, xyz(load_tri_vertex(tris, tri, 0)), xyz(load_tri_vertex(tris, tri, 1)),
+                                  xyz(load_tri_vertex(tris, tri, 2)), tri, hit);
 #endif
 }
 

@@ -122,3 +122,14 @@ def plucker_tri_data(vertices, faces) -> np.ndarray:
         data[:, 0, 3], data[:, 1, 3], data[:, 2, 3] = normal[:, 0], normal[:, 1], normal[:, 2]
         data[:, 3, 3] = np.einsum("ij,ij->i", normal, a)
     return _to_f32_rows(data, usable)
+
+
+def leaf_tris(corners: np.ndarray, objects: np.ndarray) -> np.ndarray:
+    """The BVH leaves' triangles in the order of ``objects`` (rt_bvh.h's RT_BVH_LEAF_TRIS): for each
+    reference, three float4 rows, the corners of ``corners`` ((3F, 4) float32, as uploaded as tris)
+    with the triangle id's int32 bits in the first row's w. A leaf's triangles are then consecutive
+    rows, read with no objects[] read between."""
+    objects = np.asarray(objects, np.int32)
+    out = np.asarray(corners, np.float32).reshape(-1, 3, 4)[objects].copy()
+    out[:, 0, 3] = objects.view(np.float32)
+    return out.reshape(-1, 4)

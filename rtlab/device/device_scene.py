@@ -19,10 +19,10 @@ from ..accel.bvh_stats import traversal_bvh
 from ..accel.bvh_wide import cpu_bvh, wide_node_data
 from ..accel.kdtree import KdBuildParams, KdTree
 from ..accel.ropes import RECORD_FLOAT4S, build_ropes
-from ..accel.tri_data import plucker_tri_data, wald_tri_data
+from ..accel.tri_data import leaf_tris, plucker_tri_data, wald_tri_data
 from ..scene.materials import AMBIENT, BACKGROUND
 from ..scene.model import Camera, Scene, scene_fingerprint
-from .kernels import PACKET_LANES, SceneFeatures
+from .kernels import PACKET_LANES, SceneFeatures, uses_leaf_tris
 from .variants import TRAVERSAL_SPECS
 from .layout import FRAME_DTYPE, LIGHT_DTYPE, MATERIAL_DTYPE
 
@@ -253,7 +253,7 @@ class DeviceScene:
     tree: KdTree | None                             # the kd-tree; None until a kd traversal asks (kd_tree)
     arrays: dict                                    # per-scene DeviceArrays: tris, normals, tri_materials
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
-    tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray
+    tri_data: dict = field(default_factory=dict)    # intersection test, or ("leaf", family) -> DeviceArray
     max_material_id: int = 0                        # checked against the scene's materials each use
     work: tuple | None = None                       # (buffer, work-items) of a counting build's counters
     fingerprint: bytes = b""                        # scene_fingerprint at upload
@@ -297,6 +297,16 @@ class DeviceScene:
             self.tri_data[intersection] = self._upload(self.backend, data)
         return self.tri_data[intersection]
 
+    def _leaf_tris(self, traversal: str) -> DeviceArray:
+        """The leaf-ordered triangles of the traversal's tree (uses_leaf_tris), made on first use."""
+        family = accel_family(traversal)
+        key = ("leaf", family)
+        if key not in self.tri_data:
+            arrays, _ = self._accel(traversal)
+            rows = leaf_tris(triangle_corners(self.scene), arrays.objects)
+            self.tri_data[key] = self._upload(self.backend, rows if rows.size else DUMMY_F4)
+        return self.tri_data[key]
+
     def features(self, variant) -> SceneFeatures:
         return scene_features(self.scene, self._accel(variant.traversal)[0].stack_size)
 
@@ -305,8 +315,8 @@ class DeviceScene:
         (CUDA) or images (OpenCL) over them, made on first use and kept."""
         _, (nodes, node_data, objects) = self._accel(variant.traversal)
         a = self.arrays
-        args = [nodes, node_data, objects, a["tris"], self._tri_data(variant.intersection), a["normals"],
-                a["tri_materials"]]
+        tri_data = self._leaf_tris(variant.traversal) if uses_leaf_tris(variant) else self._tri_data(variant.intersection)
+        args = [nodes, node_data, objects, a["tris"], tri_data, a["normals"], a["tri_materials"]]
         if variant.node_memory == "texture":
             return [self._texture(arg, dtype, channels).arg for arg, (dtype, channels) in zip(args, SCENE_ELEMENTS)]
         if variant.count_work:

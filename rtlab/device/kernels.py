@@ -80,6 +80,18 @@ class SceneFeatures:
                        max_bounces=SceneFeatures.max_bounces)
 
 
+# The tests that read the three vertices (the others read their own rows of tri_data)
+VERTEX_TESTS = ("moller", "watertight")
+
+
+def uses_leaf_tris(variant: Variant) -> bool:
+    """Whether the variant's leaves read a leaf-ordered copy of their triangles from tri_data
+    (rt_bvh.h's RT_BVH_LEAF_TRIS, rtlab.accel.tri_data.leaf_tris) in place of objects[] then tris: a
+    traversal that offers it, a test that reads vertices, and not a counting build (the work counts
+    keep the paper's layout, objects then triangles, which students' loops read too)."""
+    return variant.spec.leaf_tris and variant.intersection in VERTEX_TESTS and not variant.count_work
+
+
 def build_defines(variant: Variant, features: SceneFeatures, trace_threads: int = TRACE_THREADS,
                   **extra) -> dict[str, int]:
     """The -D set for one variant on one scene (the variant resolved for a device: rtlab.device.variants
@@ -111,6 +123,8 @@ def build_defines(variant: Variant, features: SceneFeatures, trace_threads: int 
         defines["RT_BVH_BOX_FMA"] = int(features.near_origin)
     if spec.lanes:
         defines["RT_LANES"] = PACKET_LANES
+    if uses_leaf_tris(variant):
+        defines["RT_BVH_LEAF_TRIS"] = 1
     if variant.ray_memory == "shared":
         # shared-memory ray slots: one a thread of a render block (a trace_rays block: RT_TRACE_THREADS)
         block = variant.require("block")

@@ -49,6 +49,8 @@ class TraversalSpec:
     box_fma: bool = False       # the fused box test may apply (RT_BVH_BOX_FMA, scene.near_origin)
     block_packet: bool = False  # a block is one packet, its stack in block-wide memory: only the kernels of
                                 # closest hits and primary rays declare it (no shadow or secondary rays)
+    leaf_tris: bool = False     # its leaves read their triangles' vertices from a leaf-ordered copy in tri_data
+                                # (RT_BVH_LEAF_TRIS) with the tests that read vertices (uses_leaf_tris)
 
     @property
     def code(self) -> int:
@@ -66,7 +68,7 @@ TRAVERSAL_SPECS = {s.name: s for s in (
     TraversalSpec("restart", "rt_kd_restart.h", "traverse_kd_restart", "kd", "03_traversal"),
     TraversalSpec("shortstack", "rt_kd_shortstack.h", "traverse_kd_shortstack", "kd", "03_traversal"),
     TraversalSpec("ropes", "rt_kd_ropes.h", "traverse_kd_ropes", "ropes", "03_traversal"),
-    TraversalSpec("bvh", "rt_bvh.h", "traverse_bvh", "bvh", "03_traversal", box_fma=True),
+    TraversalSpec("bvh", "rt_bvh.h", "traverse_bvh", "bvh", "03_traversal", box_fma=True, leaf_tris=True),
     TraversalSpec("bvh-packet", "rt_bvh_packet.h", "traverse_bvh_packet", "cpu-bvh", "",
                   rays_per_item=PACKET_LANES, lanes=True, box_fma=True),
     TraversalSpec("bvh8", "rt_bvh8.h", "traverse_bvh8", "bvh8", ""),
