@@ -6,17 +6,20 @@
 
 A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
-registers), ``bWxH`` (block), ``D=V`` (any -D). Time: median over the rounds of each round's best of
+registers), ``bWxH`` (block), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
 from __future__ import annotations
 
 import argparse
+from unittest import mock
 
 import numpy as np
 
 from rtlab.backends import get_backend
 from rtlab.benches.rays import make_rays, peer_figures
+from rtlab.device import tracing
 from rtlab.device.tracing import default_variant, trace
 from rtlab.reference import compare_hits
 
@@ -34,6 +37,8 @@ def parse_config(text: str, base):
         elif p.startswith("b") and "x" in p:
             w, h = p[1:].split("x")
             variant = variant.with_(block=(int(w), int(h)))
+        elif p == "nofetch":
+            defines["nofetch"] = 1
         elif "=" in p:
             k, v = p.split("=")
             defines[k] = int(v)
@@ -52,6 +57,7 @@ def main(argv=None) -> None:
     ap.add_argument("--configs", default="bvh")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--rows", action="store_true", help="primary rays as plain rows (no width=): trace()'s list path")
     a = ap.parse_args(argv)
     backend = get_backend(a.backend, a.device)
     base = default_variant(backend)
@@ -71,8 +77,11 @@ def main(argv=None) -> None:
             last = {}
             for _ in range(a.rounds):
                 for c, variant, defines in configs:
-                    r = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=a.repeats,
-                              warmup=1, width=width, defines=defines)
+                    d = {k: v for k, v in defines.items() if k != "nofetch"}
+                    with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
+                                           else tracing.fetches_rays):
+                        r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
+                                  repeats=a.repeats, warmup=1, width=None if a.rows else width, defines=d)
                     best[c].append(min(r.launches_ms))
                     last[c] = r
             peer = peers.get((view, kind, a.size), {}).get("best")

@@ -150,8 +150,8 @@ def test_sbvh_counting_traversal_finds_reference_hits():
 
 @pytest.mark.parametrize("scene_name", ["slivers", "default"])
 def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
-    """The "bvh" traversal on the spatially split tree (uploaded in place of the default build)
-    finds the float64 reference's hits."""
+    """The "bvh" traversal on the spatially split tree (uploaded in place of the default build, after
+    a trace on that: the leaf-ordered triangles follow the new tree) finds the float64 reference's hits."""
     import rtlab.device.device_scene as device_scene_module
     from rtlab.device.kernels import Variant
     from rtlab.device.tracing import trace
@@ -160,11 +160,12 @@ def test_sbvh_trace_matches_reference(backend, scene_name, monkeypatch):
     assert len(bvh.objects) > np.unique(bvh.objects).size, "nothing was split"
     arrays = device_scene_module.AccelArrays(device_scene_module.NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds,
                                              bvh.depth + 1)
+    o, d = _rays(seed=7) if scene_name == "slivers" else _default_rays(scene)
+    trace(scene, o, d, backend, Variant.paper(traversal="bvh"))   # the default build's leaf data, then a new tree
     monkeypatch.setitem(device_scene_module.ACCEL_BUILDERS, "bvh", lambda s, tree: arrays)
     ds = device_scene_module.device_scene(scene, backend)
     ds.accel.pop("bvh", None)
     try:
-        o, d = _rays(seed=7) if scene_name == "slivers" else _default_rays(scene)
         got = trace(scene, o, d, backend, Variant.paper(traversal="bvh"))
         assert ds.accel["bvh"][0] is arrays
     finally:

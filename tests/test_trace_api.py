@@ -259,3 +259,42 @@ def test_camera_rays_go_in_tiles_without_being_asked(backend, small_scene, monke
     assert np.array_equal(tiled.tri, rows.tri) and np.array_equal(tiled.t, rows.t)
     assert np.array_equal(half.tri, rows.tri[: len(o) // 2 + 1]) and np.array_equal(moved.tri, rows.tri)
     assert type(o + d) is np.ndarray and getattr(o[::2], "image_width", None) is None
+
+
+@pytest.mark.parametrize("isect", ["watertight", "moller"])
+def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, isect, monkeypatch):
+    """trace_rays_fetch (a lane takes the next ray when its own is done; the walk resumes after each
+    refill) returns trace_rays' hits bit for bit, on incoherent rays of a real scene, rays that miss
+    the scene box and an empty tail of threads. Forced on every backend: on PoCL (no warps) each lane
+    stops after every leaf and resumes, which exercises the saved walk hardest."""
+    from rtlab.device import tracing
+    scene = rtlab.load_scene("default", size=24)
+    o, d = camera_rays(scene.camera)
+    first = reference_trace(scene.vertices, scene.faces, o, d)
+    bo, bd = diffuse_rays(scene, o, d, first.t, first.tri)
+    rng = np.random.default_rng(3)
+    away = rng.normal(size=(257, 3)).astype(np.float32)                   # from far outside, most miss
+    bo = np.concatenate([bo, np.full((257, 3), 1e3, np.float32)])
+    bd = np.concatenate([bd, away])
+    variant = Variant(traversal="bvh", intersection=isect)
+    launched = []
+    real = tracing._fetch_launch
+    monkeypatch.setattr(tracing, "_fetch_launch", lambda *a, **k: launched.append(1) or real(*a, **k))
+    plain = trace(scene, bo, bd, backend, variant)
+    monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: True)
+    fetched = trace(scene, bo, bd, backend, variant, repeats=3)
+    assert launched == [1]
+    assert np.array_equal(plain.tri, fetched.tri) and np.array_equal(plain.t, fetched.t, equal_nan=True)
+    assert np.array_equal(plain.u, fetched.u) and np.array_equal(plain.v, fetched.v)
+    ref = reference_trace(scene.vertices, scene.faces, bo, bd)
+    cmp = compare_hits(ref, fetched.tri, fetched.t, scene.vertices, scene.faces, bo, bd)
+    assert cmp.n_mismatch == 0, cmp.summary()
+
+
+def test_rays_are_fetched_only_by_the_library_where_the_device_has_warps(backend):
+    from rtlab.device.tracing import fetches_rays
+    bvh = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
+    assert fetches_rays(backend, bvh, "library_trace") == backend.has_warp_votes()
+    assert not fetches_rays(backend, bvh, "03_traversal")                  # the labs' kernels: trace_rays
+    assert not fetches_rays(backend, bvh.with_(count_work=True), "library_trace")
+    assert not fetches_rays(backend, bvh.with_(traversal="stack"), "library_trace")

@@ -8,6 +8,7 @@ __constant__ RtFrame c_frame;
 __constant__ RtLight c_lights[RT_MAX_LIGHTS];
 __constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
 
-#include "rt_entry_trace.h"      // trace_rays, render_primary
+#define RT_FETCH_KERNEL 1              // trace_rays_fetch: rays taken as lanes free up (rt_bvh.h)
+#include "rt_entry_trace.h"      // trace_rays, render_primary, trace_rays_fetch
 #include "rt_entry_ray_grid.h"   // trace_ray_grid
 #include "rt_entry_loop.h"       // trace_rays_loop (and intersect_triangles)

@@ -2,6 +2,7 @@
 // every traversal, triangle test and node placement of the variant registry (rtlab/device/variants.py).
 // Not a lab step: the same entry kernels as the labs' (kernels/shared/rt_entry_*.h), so a change to a
 // lab file never changes the library. OpenCL: constants are __constant arguments, last.
-#include "rt_entry_trace.h"      // trace_rays, render_primary
+#define RT_FETCH_KERNEL 1              // trace_rays_fetch: rays taken as lanes free up (rt_bvh.h)
+#include "rt_entry_trace.h"      // trace_rays, render_primary, trace_rays_fetch
 #include "rt_entry_ray_grid.h"   // trace_ray_grid
 #include "rt_entry_loop.h"       // trace_rays_loop (and intersect_triangles)

@@ -55,6 +55,39 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) 
 #endif
 }
 
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH && defined(RT_FETCH_KERNEL)
+/* trace_rays with rays fetched as lanes free up (rt_bvh.h's bvh_trace_steps): each lane takes ray
+ * after ray from *next_ray (zero before the launch) until all n_rays are taken; the same hits as
+ * trace_rays. Launch as many threads as trace_rays would: those that start after the rays are
+ * taken leave at once. Only the library's program declares it (RT_FETCH_KERNEL): the lab steps'
+ * kernels stay the paper's. */
+RT_KERNEL void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
+                                int n_rays, RT_GLOBAL int *next_ray RT_WITH_FRAME)
+{
+    int stack[RT_STACK_SIZE];
+    BvhTrace s;
+    s.ref = BVH_DONE;
+    int index = -1;
+    for (;;) {
+        if (s.ref == BVH_DONE) {
+            if (index >= 0) {
+                refine_hit_t(RT_SCENE_ARGS, &s.ray, &s.hit);
+                rt_store_once(&hits[index], pack_hit(s.hit));
+            }
+            index = rt_atomic_inc(next_ray);
+            if (index >= n_rays)
+                return;
+            float4 o = rt_load_once(&origins[index]), d = rt_load_once(&directions[index]);
+            s.ray = make_ray(xyz(o), xyz(d), o.w, d.w);
+            bvh_trace_start(&s, rt_frame->scene_min, rt_frame->scene_max);
+            if (s.ref == BVH_DONE)
+                continue;
+        }
+        bvh_trace_steps(RT_SCENE_ARGS, &s, stack);
+    }
+}
+#endif
+
 /* The block shape is the launch's (the paper's Fig. 4 studies it); launch_pixel maps threads to
  * pixels (RT_RAY_ORDER). With the kd packet one block is one packet of rays. */
 RT_KERNEL void render_primary(RT_SCENE_PARAMS, RT_OUT(unsigned int) pixels, RT_OUT(float4) hits RT_WITH_SHADING)

@@ -221,6 +221,26 @@ RT_FN void rt_atomic_add_float(volatile RT_GLOBAL float *p, float v)
 }
 #endif
 
+/* ---- Warp occupancy (the BVH's ray fetch, rt_bvh.h): how many threads of the warp run this
+ * instruction together now. CUDA: the active mask's population. NVIDIA's OpenCL: the same PTX,
+ * inline (RT_NV_PTX: the host sets it on NVIDIA's platform). Elsewhere (PoCL: no warps) 1, and
+ * RT_HAS_WARP_VOTE is 0: the host does not use what needs it there. */
+#if defined(__CUDACC__)
+#define RT_HAS_WARP_VOTE 1
+#define rt_warp_active() __popc(__activemask())
+#elif defined(RT_NV_PTX) && RT_NV_PTX
+#define RT_HAS_WARP_VOTE 1
+RT_FN int rt_warp_active(void)
+{
+    int n;
+    asm volatile("{\n\t.reg .b32 m;\n\tactivemask.b32 m;\n\tpopc.b32 %0, m;\n\t}" : "=r"(n));
+    return n;
+}
+#else
+#define RT_HAS_WARP_VOTE 0
+#define rt_warp_active() 1
+#endif
+
 /* ---- Double precision (the watertight test's fallback, rt_intersect.h): always in CUDA, in OpenCL
  * where the device has cl_khr_fp64; -DRT_HAS_FP64=0 forces the float-only path. */
 #ifndef RT_HAS_FP64

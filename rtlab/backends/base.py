@@ -141,6 +141,11 @@ class Backend(ABC):
     @abstractmethod
     def is_gpu(self) -> bool: ...
 
+    def has_warp_votes(self) -> bool:
+        """Whether the kernels can count the threads of a warp (rt_port.h's RT_HAS_WARP_VOTE): CUDA, and
+        NVIDIA's OpenCL through inline PTX."""
+        return False
+
     def describe(self) -> str:
         return f"{self.name}: {self.device_name} ({self.platform_name})"
 

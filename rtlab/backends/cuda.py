@@ -200,6 +200,9 @@ class CudaBackend(Backend):
     def is_gpu(self) -> bool:
         return True
 
+    def has_warp_votes(self) -> bool:
+        return True
+
     def compile(self, path, defines, options=()):
         from pycuda.compiler import SourceModule
         import pycuda.driver as drv

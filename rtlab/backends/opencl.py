@@ -184,6 +184,9 @@ class OpenCLBackend(Backend):
     def is_nvidia(self) -> bool:
         return "NVIDIA" in self.platform.name
 
+    def has_warp_votes(self) -> bool:
+        return self.is_nvidia()
+
     def sm_limits(self):
         """Per-multiprocessor limits for occupancy on an NVIDIA GPU of compute capability 9.0
         (the H100); None elsewhere, where the CUDA occupancy rules do not apply."""
@@ -209,7 +212,7 @@ class OpenCLBackend(Backend):
         flags += [f"-D{k}={v}" for k, v in sorted(defines.items())]
         flags += list(options)
         if self.is_nvidia():
-            flags.append("-cl-nv-verbose")
+            flags += ["-cl-nv-verbose", "-DRT_NV_PTX=1"]     # inline PTX where rt_port.h needs it
         extra = settings.get("RTLAB_CL_OPTIONS")
         if extra:
             flags += extra.split()

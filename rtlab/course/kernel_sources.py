@@ -29,11 +29,13 @@ from .submission import Refusal, Refused, check_source, read_submitted, refused_
 KERNEL_SUBDIRS = ("shared", "cuda", "opencl")
 UNOWNED_STEP = "~"     # sorts after every step name: a region no lab claims is always stubbed
 # The course's own regions: code no lab asks for that would show a lab's solution in another form
-# (the watertight test of lab 02 in SIMD lanes, for the CPU traversals). Stubbed in every student tree
-# and the release; there the library falls back to the scalar test (rtlab.device.tracing).
+# (the watertight test of lab 02 in SIMD lanes, for the CPU traversals; lab 03's BVH walk as resumable
+# steps, for fetching rays). Stubbed in every student tree and the release; there the library falls back
+# to the scalar test and to trace_rays (rtlab.device.variants, rtlab.device.tracing).
 COURSE_REGIONS = (("kernels/shared/rt_intersect_lanes.h", "watertight_axes"),
                   ("kernels/shared/rt_intersect_lanes.h", "lanes_watertight_edges"),
-                  ("kernels/shared/rt_bvh_packet.h", "packet_watertight_axes"))
+                  ("kernels/shared/rt_bvh_packet.h", "packet_watertight_axes"),
+                  ("kernels/shared/rt_bvh.h", "bvh_trace_steps"))
 
 
 def reference_kernels() -> Path:

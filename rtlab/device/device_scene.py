@@ -253,7 +253,8 @@ class DeviceScene:
     tree: KdTree | None                             # the kd-tree; None until a kd traversal asks (kd_tree)
     arrays: dict                                    # per-scene DeviceArrays: tris, normals, tri_materials
     accel: dict = field(default_factory=dict)       # family -> (AccelArrays, [DeviceArray x 3])
-    tri_data: dict = field(default_factory=dict)    # intersection test, or ("leaf", family) -> DeviceArray
+    tri_data: dict = field(default_factory=dict)    # intersection test -> DeviceArray; ("leaf", family) ->
+                                                    # (the AccelArrays it was made from, DeviceArray)
     max_material_id: int = 0                        # checked against the scene's materials each use
     work: tuple | None = None                       # (buffer, work-items) of a counting build's counters
     fingerprint: bytes = b""                        # scene_fingerprint at upload
@@ -299,13 +300,14 @@ class DeviceScene:
 
     def _leaf_tris(self, traversal: str) -> DeviceArray:
         """The leaf-ordered triangles of the traversal's tree (uses_leaf_tris), made on first use."""
-        family = accel_family(traversal)
-        key = ("leaf", family)
-        if key not in self.tri_data:
-            arrays, _ = self._accel(traversal)
-            rows = leaf_tris(triangle_corners(self.scene), arrays.objects)
-            self.tri_data[key] = self._upload(self.backend, rows if rows.size else DUMMY_F4)
-        return self.tri_data[key]
+        arrays, _ = self._accel(traversal)
+        key = ("leaf", accel_family(traversal))
+        made_for, rows = self.tri_data.get(key, (None, None))
+        if made_for is not arrays:          # first use, or the family's tree was replaced since
+            corners = leaf_tris(triangle_corners(self.scene), arrays.objects)
+            rows = self._upload(self.backend, corners if corners.size else DUMMY_F4)
+            self.tri_data[key] = (arrays, rows)
+        return rows
 
     def features(self, variant) -> SceneFeatures:
         return scene_features(self.scene, self._accel(variant.traversal)[0].stack_size)

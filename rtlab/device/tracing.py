@@ -281,9 +281,14 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     if program.defines.get("RT_TRACE_THREADS") != TRACE_BLOCK:    # it sizes the kernel's block-wide ray array
         raise RtlabError(f"{name} was compiled for trace_rays blocks of {program.defines.get('RT_TRACE_THREADS')} "
                          f"threads, launched with {TRACE_BLOCK}")
-    launch = _grid_launch(program, name, ds, variant, n, width, (o_buf, d_buf, h_buf)) if width and lanes == 1 else \
-        (lambda: program.launch("trace_rays", (items,), (TRACE_BLOCK,),
-                                ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)], constants=("frame",)))
+    if width and lanes == 1:
+        launch = _grid_launch(program, name, ds, variant, n, width, (o_buf, d_buf, h_buf))
+    elif fetches_rays(backend, variant, name):
+        launch = _fetch_launch(backend, program, ds, variant, n, (o_buf, d_buf, h_buf))
+    else:
+        launch = lambda: program.launch("trace_rays", (items,), (TRACE_BLOCK,),  # noqa: E731
+                                        ds.scene_args(variant) + [o_buf, d_buf, h_buf, np.int32(n)],
+                                        constants=("frame",))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     t = _t_in_caller_units(t, scale)
@@ -291,6 +296,28 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
 
 
 GRID_PROGRAMS = ("library_trace", "00_primary")     # the programs that hold trace_ray_grid
+
+
+def fetches_rays(backend, variant: Variant, program_name: str) -> bool:
+    """Whether trace() launches trace_rays_fetch (rays taken as a warp's lanes free up; rt_bvh.h) for rays
+    in no image order: the library's program, a traversal that has it, a device with warps. +7 to +23 %
+    on diffuse rays (docs/results.md, "Rays fetched as lanes free up")."""
+    from ..paths import tree_has_stubs
+    return (program_name == "library_trace" and variant.spec.fetch_rays and not variant.count_work
+            and backend.has_warp_votes() and not tree_has_stubs(f"shared/{variant.spec.header}"))
+
+
+def _fetch_launch(backend, program, ds, variant: Variant, n: int, buffers):
+    """The launch of trace_rays_fetch: as many threads as trace_rays (those that start after every ray is
+    taken leave at once), its ray counter zeroed before each launch."""
+    counter = backend.empty(4)
+    zero = np.zeros(1, np.int32)
+    args = ds.scene_args(variant) + list(buffers) + [np.int32(n), counter]
+
+    def launch():
+        backend.fill(counter, zero)
+        return program.launch("trace_rays_fetch", (n,), (TRACE_BLOCK,), args, constants=("frame",))
+    return launch
 
 
 def _grid_launch(program, name: str, ds, variant: Variant, n: int, width: int, buffers):

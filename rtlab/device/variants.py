@@ -51,6 +51,8 @@ class TraversalSpec:
                                 # closest hits and primary rays declare it (no shadow or secondary rays)
     leaf_tris: bool = False     # its leaves read their triangles' vertices from a leaf-ordered copy in tri_data
                                 # (RT_BVH_LEAF_TRIS) with the tests that read vertices (uses_leaf_tris)
+    fetch_rays: bool = False    # trace() takes its rays as lanes free up (trace_rays_fetch) where the device
+                                # has warps (Backend.has_warp_votes): rays in no image order
 
     @property
     def code(self) -> int:
@@ -68,7 +70,8 @@ TRAVERSAL_SPECS = {s.name: s for s in (
     TraversalSpec("restart", "rt_kd_restart.h", "traverse_kd_restart", "kd", "03_traversal"),
     TraversalSpec("shortstack", "rt_kd_shortstack.h", "traverse_kd_shortstack", "kd", "03_traversal"),
     TraversalSpec("ropes", "rt_kd_ropes.h", "traverse_kd_ropes", "ropes", "03_traversal"),
-    TraversalSpec("bvh", "rt_bvh.h", "traverse_bvh", "bvh", "03_traversal", box_fma=True, leaf_tris=True),
+    TraversalSpec("bvh", "rt_bvh.h", "traverse_bvh", "bvh", "03_traversal", box_fma=True, leaf_tris=True,
+                  fetch_rays=True),
     TraversalSpec("bvh-packet", "rt_bvh_packet.h", "traverse_bvh_packet", "cpu-bvh", "",
                   rays_per_item=PACKET_LANES, lanes=True, box_fma=True),
     TraversalSpec("bvh8", "rt_bvh8.h", "traverse_bvh8", "bvh8", ""),
