@@ -280,6 +280,7 @@ def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, isect, monk
     launched = []
     real = tracing._fetch_launch
     monkeypatch.setattr(tracing, "_fetch_launch", lambda *a, **k: launched.append(1) or real(*a, **k))
+    monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: False)
     plain = trace(scene, bo, bd, backend, variant)
     monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: True)
     fetched = trace(scene, bo, bd, backend, variant, repeats=3)
