@@ -121,4 +121,53 @@ RT_FN void trace_wavefront_ray(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, R
     add_rgb_atomic(frame_rgb, pixel, c);
 }
 
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH && defined(RT_FETCH_KERNEL)
+/* Level >= 1 with rays fetched as lanes free up (rt_bvh.h's bvh_trace_steps, as trace_rays_fetch):
+ * a lane takes queue entry after entry from *next_ray (zero before the launch); when its ray's walk is
+ * done it shades and spawns exactly as trace_wavefront_ray does, then takes the next. Same rays, hits
+ * and children; only the order of the colour additions and of the children in the next queue depend
+ * on the schedule (as they already do on the atomics). */
+RT_FN void trace_wavefront_fetch_rays(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
+                                      RT_CONST const RtMaterial *materials, int level,
+                                      RT_GLOBAL const float4 *in_ow, RT_GLOBAL const float4 *in_dp,
+                                      RT_GLOBAL const int *in_path, int n_front, int n_in, int in_cap,
+                                      RT_GLOBAL float4 *frame_rgb, RT_GLOBAL float4 *hits_out, RT_GLOBAL float4 *q_ow,
+                                      RT_GLOBAL float4 *q_dp, RT_GLOBAL int *q_path, RT_GLOBAL int *q_count, int q_cap,
+                                      RT_GLOBAL int *next_ray)
+{
+    /* Why many parameters: trace_wavefront_ray's, and the counter the lanes take rays from */
+    int stack[RT_STACK_SIZE];
+    BvhTrace s;
+    s.ref = BVH_DONE;
+    int i = -1, slot = 0;
+    float w = 0.0f;
+    int pixel = 0;
+    for (;;) {
+        if (s.ref == BVH_DONE) {
+            if (i >= 0) {
+#if RT_WRITE_HITS
+                hits_out[i] = pack_hit(s.hit);
+#endif
+                float3 c = shade_and_spawn(RT_SCENE_ARGS, frame, lights, materials, level, s.ray.d, w, &s.hit, pixel,
+                                           in_path[slot], q_ow, q_dp, q_path, q_count, q_cap);
+                add_rgb_atomic(frame_rgb, pixel, c);
+            }
+            i = rt_atomic_inc(next_ray);
+            if (i >= n_in)
+                return;
+            slot = queue_slot(i, n_front, in_cap);
+            float4 ow = in_ow[slot];
+            float4 dp = in_dp[slot];
+            w = ow.w;
+            pixel = rt_as_int(dp.w);
+            s.ray = make_ray(xyz(ow), xyz(dp), 0.0f, RT_INF);
+            bvh_trace_start(&s, frame->scene_min, frame->scene_max);
+            if (s.ref == BVH_DONE)
+                continue;
+        }
+        bvh_trace_steps(RT_SCENE_ARGS, &s, stack);
+    }
+}
+#endif
+
 #endif /* RT_WAVEFRONT_H */
