@@ -16,7 +16,7 @@ import pytest
 
 from rtlab.device.kernels import SceneFeatures, Variant, build_defines, kernel_source
 from rtlab.device.probes import probe_refraction, probe_secondary_rays, probe_shadow_rays
-from rtlab.device.tracing import fetches_rays, trace
+from rtlab.device.tracing import trace
 from rtlab.device.whitted import NO_RAY, render_whitted, shading_defines
 from rtlab.errors import RtlabError
 from rtlab.reference.whitted import reference_whitted, whitted_error
@@ -106,8 +106,8 @@ def test_wavefront_traces_the_trees_rays(backend, glass, make):
     for bounces in (1, 3):
         tree = render_whitted(scene, backend, bounces=bounces, write_hits=True)
         wave = render_whitted(scene, backend, bounces=bounces, write_hits=True, schedule="wavefront")
-        level = "trace_wavefront_fetch" if fetches_rays(backend, wave.variant, "library_bounces") else "trace_wavefront"
-        assert [l.kernel for l in wave.launches] == ["trace_wavefront_primary"] + [level] * bounces + ["pack_frame"]
+        assert [l.kernel for l in wave.launches] == (["trace_wavefront_primary"] + ["trace_wavefront"] * bounces
+                                                      + ["pack_frame"])
         assert sorted(k for k, v in tree.tree.items() if np.any(v != NO_RAY)) == sorted(wave.tree)
         for node, ids in wave.tree.items():
             np.testing.assert_array_equal(ids, tree.tree[node], err_msg=node)
@@ -120,28 +120,6 @@ def test_wavefront_traces_the_trees_rays(backend, glass, make):
             assert launch.rays == sum(int(np.count_nonzero(ids != NO_RAY)) for ids in level_nodes)
     if make is _all_glass:
         assert max(l.rays for l in wave.launches[1:-1]) > n, "no level outgrew the first queue"
-
-
-def test_wavefront_levels_with_fetched_rays_trace_the_same_tree(backend, glass, monkeypatch):
-    """The secondary levels with rays fetched as lanes free up (trace_wavefront_fetch: the walk resumes
-    after each refill, and a lane shades when its ray is done) give the plain levels' ray tree and hits,
-    and their image up to the order of the additions into a pixel. Forced on every backend."""
-    scene = _all_glass(glass)
-    variant = Variant(traversal="bvh", intersection="watertight")
-    frames = {}
-    for fetch in (False, True):
-        monkeypatch.setattr(type(backend), "has_warp_votes", lambda self, on=fetch: on)
-        frames[fetch] = render_whitted(scene, backend, variant, bounces=3, write_hits=True, schedule="wavefront")
-    plain, fetched = frames[False], frames[True]
-    assert [l.kernel for l in fetched.launches][1:-1] == ["trace_wavefront_fetch"] * 3
-    assert [l.kernel for l in plain.launches][1:-1] == ["trace_wavefront"] * 3
-    assert sorted(plain.tree) == sorted(fetched.tree)
-    for node, ids in fetched.tree.items():
-        np.testing.assert_array_equal(ids, plain.tree[node], err_msg=node)
-    np.testing.assert_array_equal(fetched.hits.tri, plain.hits.tri)
-    assert [l.rays for l in fetched.launches] == [l.rays for l in plain.launches]
-    diff = np.abs(fetched.image.astype(np.int32) - plain.image.astype(np.int32)).max(axis=2)
-    assert diff.max() <= 1 and np.count_nonzero(diff) <= 0.001 * diff.size
 
 
 def test_wavefront_matches_reference(backend, glass):

@@ -8,5 +8,4 @@ __constant__ RtFrame c_frame;
 __constant__ RtLight c_lights[RT_MAX_LIGHTS];
 __constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
 
-#define RT_FETCH_KERNEL 1              // trace_wavefront_fetch: rays taken as lanes free up (rt_bvh.h)
 #include "rt_entry_bounces.h"    // the tree's (or the wavefront's) kernels, pack_frame, probes

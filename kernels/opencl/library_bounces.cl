@@ -2,5 +2,4 @@
 // bounces >= 1): the paper's kernel tree or the wavefront schedule, and the secondary-ray probes. Not
 // a lab step: the same entry kernels as lab step 05's (kernels/shared/rt_entry_bounces.h). OpenCL:
 // constants are __constant arguments, last.
-#define RT_FETCH_KERNEL 1              // trace_wavefront_fetch: rays taken as lanes free up (rt_bvh.h)
 #include "rt_entry_bounces.h"    // the tree's (or the wavefront's) kernels, pack_frame, probes

@@ -92,18 +92,6 @@ RT_KERNEL void trace_wavefront(RT_SCENE_PARAMS, RT_IN(float4) in_ow, RT_IN(float
     trace_wavefront_ray(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, level, i, in_ow, in_dp, in_path, n_front,
                         in_cap, frame_rgb, hits_out, q_ow, q_dp, q_path, q_count, q_cap);
 }
-
-#if RT_TRAVERSAL == RT_TRAVERSAL_BVH && defined(RT_FETCH_KERNEL)
-/* Level >= 1, rays fetched as lanes free up (the library's program only: RT_FETCH_KERNEL). */
-RT_KERNEL void trace_wavefront_fetch(RT_SCENE_PARAMS, RT_IN(float4) in_ow, RT_IN(float4) in_dp, RT_IN(int) in_path,
-                                     int n_front, int n_in, int in_cap, RT_OUT(float4) frame_rgb,
-                                     RT_OUT(float4) hits_out, RT_QUEUE_OUT, int level, RT_GLOBAL int *next_ray
-                                     RT_WITH_SHADING)
-{
-    trace_wavefront_fetch_rays(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, level, in_ow, in_dp, in_path, n_front,
-                               n_in, in_cap, frame_rgb, hits_out, q_ow, q_dp, q_path, q_count, q_cap, next_ray);
-}
-#endif
 #endif /* RT_WAVEFRONT */
 
 /* The accumulated frame to RGBA8. */

@@ -298,17 +298,12 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
 GRID_PROGRAMS = ("library_trace", "00_primary")     # the programs that hold trace_ray_grid
 
 
-# The programs that hold the ray-fetching kernels (RT_FETCH_KERNEL): trace_rays_fetch, trace_wavefront_fetch
-FETCH_PROGRAMS = ("library_trace", "library_bounces")
-
-
 def fetches_rays(backend, variant: Variant, program_name: str) -> bool:
-    """Whether trace() launches trace_rays_fetch for rays in no image order, and a wavefront Whitted frame
-    trace_wavefront_fetch for its secondary levels (rays taken as a warp's lanes free up; rt_bvh.h): the
-    library's programs, a traversal that has it, a device with warps. +8 to +20 % on diffuse rays on the
-    H100 (docs/results.md, "Rays fetched as lanes free up")."""
+    """Whether trace() launches trace_rays_fetch (rays taken as a warp's lanes free up; rt_bvh.h) for rays
+    in no image order: the library's program, a traversal that has it, a device with warps. +7 to +23 %
+    on diffuse rays (docs/results.md, "Rays fetched as lanes free up")."""
     from ..paths import tree_has_stubs
-    return (program_name in FETCH_PROGRAMS and variant.spec.fetch_rays and not variant.count_work
+    return (program_name == "library_trace" and variant.spec.fetch_rays and not variant.count_work
             and backend.has_warp_votes() and not tree_has_stubs(f"shared/{variant.spec.header}"))
 
 

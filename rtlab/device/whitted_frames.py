@@ -10,13 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pathlib import Path
-
 import numpy as np
 
 from ..kernel_constants import kernel_constant
 from .layout import HIT_DTYPE
-from .tracing import fetches_rays, unpack_hits
+from .tracing import unpack_hits
 
 NO_RAY = int(kernel_constant("RT_NO_RAY"))      # tri of a tree node whose ray was not spawned
 KINDS = (("R", "trace_reflection", "RT_REFLECTION"), ("T", "trace_refraction", "RT_REFRACTION"))
@@ -223,8 +221,6 @@ class WavefrontFrame(Frame):
         self.queues = [self._queue(2 * self.n if self.depth > 0 else 1) for _ in range(2)]
         self.zero = np.zeros(2, np.int32)
         self.primary_records = None
-        self.fetch = fetches_rays(backend, variant, Path(program.path).stem)   # secondary levels
-        self.next_ray = backend.empty(4) if self.fetch else None
 
     def _queue(self, cap: int) -> _Queue:
         b = self.backend
@@ -241,8 +237,7 @@ class WavefrontFrame(Frame):
         return [q.ow, q.dp, q.path, q.count, np.int32(q.cap)]
 
     def kernels(self) -> list[str]:
-        level = "trace_wavefront_fetch" if self.fetch else "trace_wavefront"
-        return ["trace_wavefront_primary"] + ([level] if self.depth > 0 else []) + ["pack_frame"]
+        return ["trace_wavefront_primary"] + (["trace_wavefront"] if self.depth > 0 else []) + ["pack_frame"]
 
     def frame(self) -> list[Launch]:
         launches: list[Launch] = []
@@ -262,15 +257,11 @@ class WavefrontFrame(Frame):
             out = self._filled(level % 2, 2 * rays if level < self.depth else 0)
             if self.write_hits and rays > self.hits_cap:
                 self.hits_cap, self.hits = rays, self.backend.empty(16 * rays)
-            args = self.args + [src.ow, src.dp, src.path, np.int32(front), np.int32(rays), np.int32(src.cap),
-                                self.frame_rgb, self.hits] + self._queue_args(out) + [np.int32(level)]
-            kernel = "trace_wavefront"
-            if self.fetch:
-                kernel = "trace_wavefront_fetch"
-                self.backend.fill(self.next_ray, self.zero[:1])
-                args.append(self.next_ray)
-            ms = self.program.launch(kernel, (rays,), self.block1d, args, constants=CONSTANTS)
-            launches.append(Launch(kernel, "P" + "*" * level, level, rays, ms))
+            ms = self.program.launch("trace_wavefront", (rays,), self.block1d,
+                                     self.args + [src.ow, src.dp, src.path, np.int32(front), np.int32(rays),
+                                                  np.int32(src.cap), self.frame_rgb, self.hits]
+                                     + self._queue_args(out) + [np.int32(level)], constants=CONSTANTS)
+            launches.append(Launch("trace_wavefront", "P" + "*" * level, level, rays, ms))
             if self.tree is not None:
                 self._record_level(level, src, front, back)
         ms = self.program.launch("pack_frame", (self.n,), self.block1d, [self.frame_rgb, self.pixels, np.int32(self.n)])
