@@ -211,14 +211,14 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
 /* ---- Rays fetched as lanes free up (Aila & Laine 2009, §4: persistent threads, "replacing
  * terminated rays") ----------------------------------------------------------------------------------
  * On incoherent rays a warp runs as long as its longest ray while the lanes of the short ones idle
- * (H100, diffuse rays: 7-8 threads of 32 busy per warp instruction). Here a lane whose ray is done
+ * (a quarter of the lanes busy on diffuse rays: docs/results.md, "Idle lanes"). Here a lane whose ray is done
  * takes the next ray of the launch from a counter (trace_rays_fetch, rt_entry_trace.h), and the
  * lanes still tracing stop after a leaf when fewer than RT_FETCH_THRESHOLD of them are left, so the
  * idle ones refill together. The walk is traverse_bvh's closest hit, its state kept across the
  * refills; the hits are trace_rays' bit for bit. It is traverse_bvh in another form, so a course
  * region (stubbed in student trees, where the library does not launch it). The host launches it for
- * rays in no image order on devices with warps (rtlab.device.tracing.fetches_rays): +7 to +23 % on
- * diffuse rays against trace_rays (H200, same run). A threshold of 12 or 28 did no better than 20. */
+ * rays in no image order on devices with warps (rtlab.device.tracing.fetches_rays); what it gains and
+ * how the threshold was chosen: docs/results.md, "Rays fetched as lanes free up". */
 #ifndef RT_FETCH_THRESHOLD
 #define RT_FETCH_THRESHOLD 20
 #endif

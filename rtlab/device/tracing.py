@@ -300,17 +300,22 @@ GRID_PROGRAMS = ("library_trace", "00_primary")     # the programs that hold tra
 
 def fetches_rays(backend, variant: Variant, program_name: str) -> bool:
     """Whether trace() launches trace_rays_fetch (rays taken as a warp's lanes free up; rt_bvh.h) for rays
-    in no image order: the library's program, a traversal that has it, a device with warps. +7 to +23 %
-    on diffuse rays (docs/results.md, "Rays fetched as lanes free up")."""
+    in no image order: the library's program, a traversal that has it, a device with warps (what it gains:
+    docs/results.md, "Rays fetched as lanes free up")."""
     from ..paths import tree_has_stubs
     return (program_name == "library_trace" and variant.spec.fetch_rays and not variant.count_work
             and backend.has_warp_votes() and not tree_has_stubs(f"shared/{variant.spec.header}"))
 
 
+_fetch_counters: dict = {}      # backend -> its trace_rays_fetch ray counter (one int), kept like the ray buffers
+
+
 def _fetch_launch(backend, program, ds, variant: Variant, n: int, buffers):
     """The launch of trace_rays_fetch: as many threads as trace_rays (those that start after every ray is
     taken leave at once), its ray counter zeroed before each launch."""
-    counter = backend.empty(4)
+    counter = _fetch_counters.get(backend)
+    if counter is None:
+        counter = _fetch_counters[backend] = backend.empty(4)
     zero = np.zeros(1, np.int32)
     args = ds.scene_args(variant) + list(buffers) + [np.int32(n), counter]
 
