@@ -101,32 +101,39 @@ RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
     return rt_as_float(rt_imin(rt_imin(rt_imin(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(t_hit)));
 }
 
-/* Whether the ray's segment meets the child box [lo, hi] before the closest hit so far, t_hit; its
- * entry distance in *t_enter. Inclusive up to t_cull(t_hit): a box entered exactly at the hit may
- * hold a lower-id triangle at the same t (closer_hit), and both distances carry rounding. The ray passed the scene box's clip_ray_box, so it can
- * enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
+/* Whether the ray's segment meets the child box [lo, hi] up to t_cut, t_cull of the closest hit so
+ * far (inclusive: a box entered exactly at the hit may hold a lower-id triangle at the same t,
+ * closer_hit, and both distances carry rounding); its entry distance in *t_enter. t_cut changes only
+ * where a leaf finds a hit, so the walk pads it there, not at every node (hit_bvh_child pads it
+ * itself). The ray passed the scene box's clip_ray_box, so it can enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
  * else the exact (b - o) * inv_d of clip_entering_ray_box (scenes far from the origin). */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
 #define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.device_scene.near_origin), where it costs no leaks */
 #endif
 #define RT_BVH_EXIT_SCALE (1.0f + RT_T_PAD)
-RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, float t_hit, float *t_enter)
+RT_FN int hit_bvh_child_cut(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, float t_cut, float *t_enter)
 {
 #if !RT_BVH_BOX_FMA
     float t_exit;
-    return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_cull(t_hit);
+    return clip_entering_ray_box(ray, lo, hi, t_enter, &t_exit) && *t_enter <= t_cut;
 #else
     float lx = rt_fma(lo.x, r->inv.x, -r->o_lo.x), hx = rt_fma(hi.x, r->inv.x, -r->o_hi.x);
     float ly = rt_fma(lo.y, r->inv.y, -r->o_lo.y), hy = rt_fma(hi.y, r->inv.y, -r->o_hi.y);
     float lz = rt_fma(lo.z, r->inv.z, -r->o_lo.z), hz = rt_fma(hi.z, r->inv.z, -r->o_hi.z);
     float t0 = bvh_span_enter(rt_min(lx, hx), rt_min(ly, hy), rt_min(lz, hz), r->tmin);
-    float t1 = bvh_span_exit(rt_max(lx, hx), rt_max(ly, hy), rt_max(lz, hz), t_cull(t_hit));
+    float t1 = bvh_span_exit(rt_max(lx, hx), rt_max(ly, hy), rt_max(lz, hz), t_cut);
 #if RT_CONSERVATIVE
     t1 *= RT_BVH_EXIT_SCALE;
 #endif
     *t_enter = t0;
     return t0 <= t1;
 #endif
+}
+
+/* The same, padding the closest hit's t itself (t_cull) */
+RT_FN int hit_bvh_child(const Ray *ray, const BvhRay *r, float4 lo, float4 hi, float t_hit, float *t_enter)
+{
+    return hit_bvh_child_cut(ray, r, lo, hi, t_cull(t_hit), t_enter);
 }
 
 /* RT_BVH_LEAF_TRIS 1: tri_data holds the leaves' triangles in the order of objects, three float4 rows a
@@ -174,6 +181,7 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
     int stack[RT_STACK_SIZE];
     int sp = 0;
     int ref = 0;
+    float t_cut = t_cull(hit->t);      /* changes only where a leaf finds a hit */
     for (;;) {
         /* Inner nodes: take the nearer child hit, push the farther; pop when neither is hit */
         while (ref >= 0) {
@@ -183,8 +191,8 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
             float4 z = load_node_data(node_data, base + 2);
             float4 c = load_node_data(node_data, base + 3);
             float e0, e1;
-            int hit0 = hit_bvh_child(ray, &fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), hit->t, &e0);
-            int hit1 = hit_bvh_child(ray, &fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), hit->t, &e1);
+            int hit0 = hit_bvh_child_cut(ray, &fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), t_cut, &e0);
+            int hit1 = hit_bvh_child_cut(ray, &fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), t_cut, &e1);
             int c0 = rt_as_int(c.x), c1 = rt_as_int(c.y);
             if (hit0 && hit1) {
                 int near0 = e0 <= e1;
@@ -201,6 +209,7 @@ RT_FN void traverse_bvh(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, con
         /* A leaf */
         if (intersect_bvh_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
             return;
+        t_cut = t_cull(hit->t);
         if (sp == 0)
             return;
         ref = stack[--sp];
@@ -251,6 +260,7 @@ RT_FN void bvh_trace_steps(RT_SCENE_PARAMS, BvhTrace *s, int *stack)
 {
     /* BEGIN SOLUTION */
     /* STUB: s->ref = BVH_DONE; return; */
+    float t_cut = t_cull(s->hit.t);    /* changes only where a leaf finds a hit */
     for (;;) {
         while ((unsigned int)s->ref < (unsigned int)BVH_DONE) {
             int base = BVH_NODE_STRIDE * s->ref;
@@ -259,8 +269,8 @@ RT_FN void bvh_trace_steps(RT_SCENE_PARAMS, BvhTrace *s, int *stack)
             float4 z = load_node_data(node_data, base + 2);
             float4 c = load_node_data(node_data, base + 3);
             float e0, e1;
-            int hit0 = hit_bvh_child(&s->ray, &s->fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), s->hit.t, &e0);
-            int hit1 = hit_bvh_child(&s->ray, &s->fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), s->hit.t, &e1);
+            int hit0 = hit_bvh_child_cut(&s->ray, &s->fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), t_cut, &e0);
+            int hit1 = hit_bvh_child_cut(&s->ray, &s->fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), t_cut, &e1);
             int c0 = rt_as_int(c.x), c1 = rt_as_int(c.y);
             if (hit0 && hit1) {
                 int near0 = e0 <= e1;
@@ -274,6 +284,7 @@ RT_FN void bvh_trace_steps(RT_SCENE_PARAMS, BvhTrace *s, int *stack)
         }
         if (s->ref < 0) {
             intersect_bvh_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
+            t_cut = t_cull(s->hit.t);
             s->ref = s->sp ? stack[--s->sp] : BVH_DONE;
         }
         if (s->ref == BVH_DONE || rt_warp_active() < RT_FETCH_THRESHOLD)

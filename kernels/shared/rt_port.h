@@ -151,8 +151,12 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #else /* OpenCL C */
 #define RT_FN static inline
 #define RT_FN_NOINLINE static __attribute__((noinline))
-#ifndef RT_REFINE_CALL             /* inlined: PoCL vectorises work-items through it; NVIDIA's OpenCL */
-#define RT_REFINE_CALL 0           /* chooses its registers itself */
+#ifndef RT_REFINE_CALL             /* the watertight test's double plane distance (rt_intersect.h): */
+#if defined(RT_NV_PTX) && RT_NV_PTX
+#define RT_REFINE_CALL 1           /* NVIDIA's OpenCL: a call, as on CUDA (inlined, NVVM keeps the ray's */
+#else                              /* doubles live through the walk: 72 registers; docs/results.md) */
+#define RT_REFINE_CALL 0           /* inlined: PoCL vectorises work-items through it */
+#endif
 #endif
 #define RT_KERNEL __kernel
 #define RT_GLOBAL __global

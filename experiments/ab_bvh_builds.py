@@ -1,0 +1,132 @@
+"""A/B of BVH build parameters for the GPU default's "bvh" traversal, on the benchmark rays, the
+configurations alternating round by round on the same rays (as ab_trace_configs.py does), with the
+tree's SAH cost, node count and the error column.
+
+    python experiments/ab_bvh_builds.py --backend cuda --kinds primary,diffuse --size 1024 \
+        --configs "ml8;ml4;ct0.5;ct2" [--views ...] [--rounds 4] [--repeats 5]
+
+A configuration changes rtlab.accel.bvh.BvhBuildParams for both builds that traversal_bvh chooses
+between (plain and spatial splits, kept by the same SAH rule): ``mlN`` max_leaf_size N, ``ctX``
+cost_traversal X, ``ciX`` cost_intersect X, ``binsN``; parts joined by ``+`` (``ml4+ct0.5``); ``base``
+the builder's defaults. Each configuration gets its own DeviceScene, so the trees do not mix.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from unittest import mock
+
+import numpy as np
+
+from rtlab.accel import bvh_stats
+from rtlab.accel.bvh import BvhBuildParams, load_or_build_bvh
+from rtlab.backends import get_backend
+from rtlab.benches.rays import make_rays, peer_figures
+from rtlab.device import device_scene as device_scene_module
+from rtlab.device import tracing
+from rtlab.device.device_scene import AccelArrays, DeviceScene, NO_NODES
+from rtlab.device.tracing import default_variant, trace
+from rtlab.reference import compare_hits
+
+
+def parse_params(text: str) -> dict:
+    out = {}
+    for part in text.split("+"):
+        if part == "base":
+            continue
+        if part.startswith("gain"):          # the SAH gain that keeps the spatial-split tree
+            out["gain"] = float(part[4:])
+            continue
+        for prefix, field, kind in (("ml", "max_leaf_size", int), ("ct", "cost_traversal", float),
+                                    ("ci", "cost_intersect", float), ("bins", "bins", int)):
+            if part.startswith(prefix):
+                out[field] = kind(part[len(prefix):])
+                break
+        else:
+            raise SystemExit(f"unknown configuration part {part!r}")
+    return out
+
+
+def tree_for(scene, changes: dict):
+    changes = dict(changes)
+    gain = changes.pop("gain", bvh_stats.SPLIT_MIN_GAIN)
+    plain = dataclasses.replace(BvhBuildParams(), **changes)
+    split = dataclasses.replace(bvh_stats.SPLIT_BUILD, **changes)
+    a, _ = load_or_build_bvh(scene.vertices, scene.faces, plain)
+    b, _ = load_or_build_bvh(scene.vertices, scene.faces, split)
+    pick = b if bvh_stats.sah_cost(b) <= (1.0 - gain) * bvh_stats.sah_cost(a) else a
+    return pick, f"plain SAH {bvh_stats.sah_cost(a):.2f}, split SAH {bvh_stats.sah_cost(b):.2f}"
+
+
+def upload(backend, scene, changes: dict):
+    bvh, both = tree_for(scene, changes)
+
+    def builder(scene_, tree_):
+        return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
+
+    ds = DeviceScene.upload(backend, scene, None)
+    with mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
+        ds._accel("bvh")                 # the tree uploaded now, under this configuration's builder
+    info = (f"{'split' if bvh.params.spatial else 'plain'}, SAH {bvh_stats.sah_cost(bvh):.1f}, "
+            f"{bvh.n_nodes:,} nodes, {len(bvh.objects):,} refs ({both})")
+    return ds, builder, info
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--backend", default="cuda")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--views", default="bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside")
+    ap.add_argument("--kinds", default="primary,diffuse")
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--configs", default="base;ml4")
+    ap.add_argument("--rounds", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--variant", default=None, help="a variant reading the \"bvh\" family (default: the backend's default)")
+    a = ap.parse_args(argv)
+    backend = get_backend(a.backend, a.device)
+    variant = tracing.resolve_variant(a.variant or None, backend)
+    configs = [(c, parse_params(c)) for c in a.configs.split(";")]
+    peers = peer_figures()
+    print(f"device: {backend.name}: {backend.device_name}; variant {variant.label()}; {a.rounds} rounds x best of "
+          f"{a.repeats}")
+    print("| view | kind | " + " | ".join(c for c, _ in configs) + " | errors |")
+    print("|---|---|" + "---:|" * len(configs) + "---|")
+    scenes = {}
+    for kind in a.kinds.split(","):
+        for view in a.views.split(","):
+            if kind == "diffuse" and view == "bunny/far":
+                continue
+            batch = make_rays(view, kind, a.size)
+            key = view.split("/")[0]
+            if key not in scenes:
+                scenes[key] = {c: upload(backend, batch.scene, ch) for c, ch in configs}
+                for c, (_, _, info) in scenes[key].items():
+                    print(f"<!-- {key} {c}: {info} -->", flush=True)
+            width = batch.size if kind == "primary" else None
+            best = {c: [] for c, _ in configs}
+            last = {}
+            for _ in range(a.rounds):
+                for c, _ in configs:
+                    ds, builder, _ = scenes[key][c]
+                    with mock.patch.object(tracing, "device_scene", lambda *_args, **_kw: ds), \
+                            mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
+                        r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
+                                  repeats=a.repeats, warmup=1, width=width)
+                    best[c].append(min(r.launches_ms))
+                    last[c] = r
+            peer = peers.get((view, kind, a.size), {}).get("best")
+            cells, errors = [], []
+            for c, _ in configs:
+                mrays = len(batch.origins) / (float(np.median(best[c])) * 1e-3) / 1e6
+                cells.append(f"{mrays:,.0f}" + (f" ({mrays / peer:.2f}x)" if peer else ""))
+                idx = batch.check_index
+                cmp_ = compare_hits(batch.reference, last[c].tri[idx], last[c].t[idx], batch.scene.vertices,
+                                    batch.scene.faces, batch.origins[idx], batch.directions[idx])
+                if cmp_.n_mismatch:
+                    errors.append(f"{c}: {cmp_.n_mismatch} mism.")
+            print(f"| {view} | {kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
