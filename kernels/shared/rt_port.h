@@ -174,8 +174,27 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #define rt_max fmax
 #define rt_imin min
 #define rt_imax max
+#if defined(RT_NV_PTX) && RT_NV_PTX
+/* NVIDIA's OpenCL: a ray read once and a hit written once streamed (ld/st .cs: evict first), as
+ * CUDA's __ldcs/__stcs, through inline PTX; a plain read of the const rays goes through L1 like the
+ * tree's nodes and evicts them (bunny/far trace() 0.88 of CUDA that way, 0.97 this way: docs/results.md) */
+RT_FN float4 rt_load_once_cs(const __global float4 *p)
+{
+    float x, y, z, w;
+    asm("ld.global.cs.v4.f32 {%0, %1, %2, %3}, [%4];" : "=f"(x), "=f"(y), "=f"(z), "=f"(w) : "l"(p));
+    return (float4)(x, y, z, w);
+}
+RT_FN void rt_store_once_cs(__global float4 *p, float4 v)
+{
+    asm volatile("st.global.cs.v4.f32 [%0], {%1, %2, %3, %4};" : : "l"(p), "f"(v.x), "f"(v.y), "f"(v.z), "f"(v.w)
+                 : "memory");
+}
+#define rt_load_once(p) rt_load_once_cs(p)
+#define rt_store_once(p, v) rt_store_once_cs((p), (v))
+#else
 #define rt_load_once(p) (*(p))
 #define rt_store_once(p, v) (*(p) = (v))
+#endif
 #define rt_abs fabs
 #define rt_sqrt sqrt
 #define rt_pow pow
