@@ -188,6 +188,28 @@ def test_register_cap_options():
     assert build_options(v, "cuda") == ("-maxrregcount=48",)
     assert build_options(v, _FakeNvidia()) == ("-cl-nv-maxrregcount=48",)
     assert build_options(Variant.paper(), "cuda") == ()
+    # the Whitted program's own cap where the variant names none; the variant's cap first; labs none
+    assert build_options(Variant.paper(), "cuda", "library_bounces") == ("-maxrregcount=64",)
+    assert build_options(Variant.paper(), _FakeNvidia(), "library_bounces") == ("-cl-nv-maxrregcount=64",)
+    assert build_options(v, "cuda", "library_bounces") == ("-maxrregcount=48",)
+    assert build_options(Variant.paper(), "cuda", "05_kernel_tree") == ()
+    assert build_options(Variant.paper(), "opencl", "library_bounces") == ()      # PoCL: no register file
+
+
+@pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
+def test_whitted_program_cap_reaches_nvcc():
+    """The library's Whitted wavefront kernels with the watertight test, for a SPONZA-like scene (near
+    the origin: the fused box test), need more than 64 registers uncapped; built with the options
+    the loader gives library_bounces they take at most 64."""
+    variant = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
+    defines = {**build_defines(variant, SceneFeatures(stack_size=48, n_lights=1, n_materials=16, near_origin=True)),
+               "RT_WAVEFRONT": 1, "RT_REFLECTION": 1, "RT_REFRACTION": 1, "RT_MAX_DEPTH": 3}
+    src = kernel_source("library_bounces", "cuda")
+    free = nvcc_resources(src, defines)["trace_wavefront"].registers
+    assert free > 64, f"trace_wavefront needs only {free} registers: the cap no longer binds"
+    capped = nvcc_resources(src, defines, extra_options=build_options(variant, "cuda", "library_bounces"))
+    assert capped["trace_wavefront"].registers <= 64
+    assert capped["trace_wavefront_primary"].registers <= 64
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")

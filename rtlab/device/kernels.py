@@ -139,12 +139,21 @@ def rays_per_work_item(variant: Variant) -> int:
     return variant.spec.rays_per_item
 
 
-def build_options(variant: Variant, backend) -> tuple[str, ...]:
-    """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study. ``backend``
-    is a Backend or a language name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
-    if not variant.max_registers:
+# Register caps of library programs where the variant names none. library_bounces (the Whitted frames
+# with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
+# its kernels take 72 registers (74-76 on NVIDIA's OpenCL); capped, they spill only around the test's
+# rarely taken double refinement, and SPONZA's Whitted frame gains 2.5 % on CUDA and 6.5 % on NVIDIA's
+# OpenCL (docs/results.md, "Whitted: a register cap"). Kernels under the cap are unchanged by it.
+LIBRARY_REGISTER_CAPS = {"library_bounces": 64}
+
+
+def build_options(variant: Variant, backend, program: str | None = None) -> tuple[str, ...]:
+    """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study, or where the
+    variant names none, ``program``'s LIBRARY_REGISTER_CAPS. ``backend`` is a Backend or a language
+    name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
+    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get(program, 0))
+    if not n:
         return ()
-    n = int(variant.max_registers)
     language = backend if isinstance(backend, str) else backend.language
     if language == "cuda":
         return (f"-maxrregcount={n}",)
@@ -163,4 +172,4 @@ def load_program(backend, program: str, variant: Variant, features: SceneFeature
                            "__local ray to the shared device functions (no generic address space on PoCL 3.1 or "
                            "NVIDIA's OpenCL)")
     return backend.compile(kernel_source(program, backend.language), build_defines(variant, features, **extra),
-                           build_options(variant, backend))
+                           build_options(variant, backend, program))
