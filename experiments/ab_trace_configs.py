@@ -6,7 +6,8 @@
 
 A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
-registers), ``bWxH`` (block), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
+driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
@@ -39,12 +40,30 @@ def parse_config(text: str, base):
             variant = variant.with_(block=(int(w), int(h)))
         elif p == "nofetch":
             defines["nofetch"] = 1
+        elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
+            defines["carveout"] = int(p[5:])
         elif "=" in p:
             k, v = p.split("=")
             defines[k] = int(v)
         else:
             raise SystemExit(f"unknown configuration part {p!r}")
     return variant, defines
+
+
+def carveout(backend, percent: int):
+    """CUDA only: every kernel launched inside prefers ``percent`` of the SM's L1/shared memory as
+    shared memory (CU_FUNC_ATTRIBUTE_PREFERRED_SHARED_MEMORY_CARVEOUT; -1 the driver's choice, 0 the
+    most L1)."""
+    if backend.name != "cuda":
+        return mock.patch.dict({})
+    from rtlab.backends.cuda import CudaProgram
+    prepared = CudaProgram.prepared
+
+    def with_carveout(self, kernel, args):
+        f = prepared(self, kernel, args)
+        f.set_attribute(self.backend.drv.function_attribute.PREFERRED_SHARED_MEMORY_CARVEOUT, percent)
+        return f
+    return mock.patch.object(CudaProgram, "prepared", with_carveout)
 
 
 def main(argv=None) -> None:
@@ -77,9 +96,10 @@ def main(argv=None) -> None:
             last = {}
             for _ in range(a.rounds):
                 for c, variant, defines in configs:
-                    d = {k: v for k, v in defines.items() if k != "nofetch"}
+                    d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout")}
                     with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
-                                           else tracing.fetches_rays):
+                                           else tracing.fetches_rays), \
+                            carveout(backend, defines.get("carveout", -1)):
                         r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
                                   repeats=a.repeats, warmup=1, width=None if a.rows else width, defines=d)
                     best[c].append(min(r.launches_ms))
