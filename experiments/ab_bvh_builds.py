@@ -16,8 +16,7 @@ import argparse
 import dataclasses
 from unittest import mock
 
-import numpy as np
-
+from ab_trace_configs import print_row       # experiments/ is on the path when run as a script
 from rtlab.accel import bvh_stats
 from rtlab.accel.bvh import BvhBuildParams, load_or_build_bvh
 from rtlab.backends import get_backend
@@ -25,8 +24,7 @@ from rtlab.benches.rays import make_rays, peer_figures
 from rtlab.device import device_scene as device_scene_module
 from rtlab.device import tracing
 from rtlab.device.device_scene import AccelArrays, DeviceScene, NO_NODES
-from rtlab.device.tracing import default_variant, trace
-from rtlab.reference import compare_hits
+from rtlab.device.tracing import trace
 
 
 def parse_params(text: str) -> dict:
@@ -115,17 +113,7 @@ def main(argv=None) -> None:
                                   repeats=a.repeats, warmup=1, width=width)
                     best[c].append(min(r.launches_ms))
                     last[c] = r
-            peer = peers.get((view, kind, a.size), {}).get("best")
-            cells, errors = [], []
-            for c, _ in configs:
-                mrays = len(batch.origins) / (float(np.median(best[c])) * 1e-3) / 1e6
-                cells.append(f"{mrays:,.0f}" + (f" ({mrays / peer:.2f}x)" if peer else ""))
-                idx = batch.check_index
-                cmp_ = compare_hits(batch.reference, last[c].tri[idx], last[c].t[idx], batch.scene.vertices,
-                                    batch.scene.faces, batch.origins[idx], batch.directions[idx])
-                if cmp_.n_mismatch:
-                    errors.append(f"{c}: {cmp_.n_mismatch} mism.")
-            print(f"| {view} | {kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |", flush=True)
+            print_row(batch, best, last, peers.get((view, kind, a.size), {}).get("best"))
 
 
 if __name__ == "__main__":

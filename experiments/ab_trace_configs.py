@@ -50,6 +50,22 @@ def parse_config(text: str, base):
     return variant, defines
 
 
+def print_row(batch, best: dict, last: dict, peer: float | None) -> None:
+    """One table row: each configuration's Mrays/s (median of its rounds' best launches; the ratio to
+    the best peer beside it) and the mismatches of its last run against the float64 reference."""
+    cells, errors = [], []
+    for c in best:
+        mrays = len(batch.origins) / (float(np.median(best[c])) * 1e-3) / 1e6
+        cells.append(f"{mrays:,.0f}" + (f" ({mrays / peer:.2f}x)" if peer else ""))
+        idx = batch.check_index
+        cmp_ = compare_hits(batch.reference, last[c].tri[idx], last[c].t[idx], batch.scene.vertices,
+                            batch.scene.faces, batch.origins[idx], batch.directions[idx])
+        if cmp_.n_mismatch:
+            errors.append(f"{c}: {cmp_.n_mismatch} mism.")
+    print(f"| {batch.view} | {batch.kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |",
+          flush=True)
+
+
 def carveout(backend, percent: int):
     """CUDA only: every kernel launched inside prefers ``percent`` of the SM's L1/shared memory as
     shared memory (CU_FUNC_ATTRIBUTE_PREFERRED_SHARED_MEMORY_CARVEOUT; -1 the driver's choice, 0 the
@@ -104,17 +120,7 @@ def main(argv=None) -> None:
                                   repeats=a.repeats, warmup=1, width=None if a.rows else width, defines=d)
                     best[c].append(min(r.launches_ms))
                     last[c] = r
-            peer = peers.get((view, kind, a.size), {}).get("best")
-            cells, errors = [], []
-            for c, _, _ in configs:
-                mrays = len(batch.origins) / (float(np.median(best[c])) * 1e-3) / 1e6
-                cells.append(f"{mrays:,.0f}" + (f" ({mrays / peer:.2f}x)" if peer else ""))
-                idx = batch.check_index
-                cmp_ = compare_hits(batch.reference, last[c].tri[idx], last[c].t[idx], batch.scene.vertices,
-                                    batch.scene.faces, batch.origins[idx], batch.directions[idx])
-                if cmp_.n_mismatch:
-                    errors.append(f"{c}: {cmp_.n_mismatch} mism.")
-            print(f"| {view} | {kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |", flush=True)
+            print_row(batch, best, last, peers.get((view, kind, a.size), {}).get("best"))
 
 
 if __name__ == "__main__":

@@ -23,8 +23,8 @@
 
 /* ---- The fused box test (RT_BVH_BOX_FMA; Aila & Laine 2009) ----------------------------------
  * A slab's plane distance (b - o) / d as one fused multiply-add, b inv - o inv, with inv = 1/d and
- * o inv computed once a ray: a quarter fewer instructions a box, 11 % off a SPONZA Whitted frame on
- * the H100. Three hazards, all handled in the per-ray setup (bvh_ray) or once a box, so the box
+ * o inv computed once a ray: a quarter fewer instructions a box (its gain: docs/results.md). Three
+ * hazards, all handled in the per-ray setup (bvh_ray) or once a box, so the box
  * test itself keeps one fma a plane:
  *  1. o inv is rounded (half an ulp of o / d), an error that grows with |o| and not with the
  *     distance: a box near an origin far from 0 (a 1e-3 sphere in a 1e5 room) could be culled.
@@ -105,8 +105,9 @@ RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
  * far (inclusive: a box entered exactly at the hit may hold a lower-id triangle at the same t,
  * closer_hit, and both distances carry rounding); its entry distance in *t_enter. t_cut changes only
  * where a leaf finds a hit, so the walk pads it there, not at every node (hit_bvh_child pads it
- * itself). The ray passed the scene box's clip_ray_box, so it can enter boxes: no per-box check of that. With RT_BVH_BOX_FMA the slabs take the fused form above,
- * else the exact (b - o) * inv_d of clip_entering_ray_box (scenes far from the origin). */
+ * itself). The ray passed the scene box's clip_ray_box, so it can enter boxes: no per-box check of
+ * that. With RT_BVH_BOX_FMA the slabs take the fused form above, else the exact (b - o) * inv_d of
+ * clip_entering_ray_box (scenes far from the origin). */
 #ifndef RT_BVH_BOX_FMA             /* 1: the fused slab form; the loader sets it for scenes near the */
 #define RT_BVH_BOX_FMA 0           /* origin (rtlab.device.device_scene.near_origin), where it costs no leaks */
 #endif

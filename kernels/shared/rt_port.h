@@ -89,7 +89,7 @@
 #define RT_FN static __device__ __forceinline__
 #define RT_FN_NOINLINE static __device__ __noinline__  /* a call: its registers are not the caller's */
 #ifndef RT_REFINE_CALL             /* the watertight test's double plane distance as a call (rt_intersect.h): */
-#define RT_REFINE_CALL 1           /* 62 registers for the bvh trace kernel, not 72; +1-6 % on the H100 */
+#define RT_REFINE_CALL 1           /* its doubles off the walk's registers (docs/results.md) */
 #endif
 #define RT_KERNEL extern "C" __global__
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
@@ -154,7 +154,7 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #ifndef RT_REFINE_CALL             /* the watertight test's double plane distance (rt_intersect.h): */
 #if defined(RT_NV_PTX) && RT_NV_PTX
 #define RT_REFINE_CALL 1           /* NVIDIA's OpenCL: a call, as on CUDA (inlined, NVVM keeps the ray's */
-#else                              /* doubles live through the walk: 72 registers; docs/results.md) */
+#else                              /* doubles live through the walk, registers the walk needs) */
 #define RT_REFINE_CALL 0           /* inlined: PoCL vectorises work-items through it */
 #endif
 #endif
@@ -177,7 +177,7 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #if defined(RT_NV_PTX) && RT_NV_PTX
 /* NVIDIA's OpenCL: a ray read once and a hit written once streamed (ld/st .cs: evict first), as
  * CUDA's __ldcs/__stcs, through inline PTX; a plain read of the const rays goes through L1 like the
- * tree's nodes and evicts them (bunny/far trace() 0.88 of CUDA that way, 0.97 this way: docs/results.md) */
+ * tree's nodes and evicts them (what it costs: docs/results.md, "NVIDIA OpenCL") */
 RT_FN float4 rt_load_once_cs(const __global float4 *p)
 {
     float x, y, z, w;

@@ -141,9 +141,9 @@ def rays_per_work_item(variant: Variant) -> int:
 
 # Register caps of library programs where the variant names none. library_bounces (the Whitted frames
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
-# its kernels take 72 registers (74-76 on NVIDIA's OpenCL); capped, they spill only around the test's
-# rarely taken double refinement, and SPONZA's Whitted frame gains 2.5 % on CUDA and 6.5 % on NVIDIA's
-# OpenCL (docs/results.md, "Whitted: a register cap"). Kernels under the cap are unchanged by it.
+# its kernels take more uncapped; capped, they spill only around the test's rarely taken double
+# refinement and run faster (docs/results.md, "Whitted: a register cap"). Kernels under the cap are
+# unchanged by it.
 LIBRARY_REGISTER_CAPS = {"library_bounces": 64}
 
 
