@@ -8,6 +8,9 @@ A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the ref
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
 driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
+direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
+direction's quantised spherical angles: what ordering could gain, the sort itself not timed),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
@@ -40,6 +43,8 @@ def parse_config(text: str, base):
             variant = variant.with_(block=(int(w), int(h)))
         elif p == "nofetch":
             defines["nofetch"] = 1
+        elif p in ("sortoct", "sortmorton", "sortdir"):
+            defines["sort"] = p[4:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
         elif "=" in p:
@@ -64,6 +69,44 @@ def print_row(batch, best: dict, last: dict, peer: float | None) -> None:
             errors.append(f"{c}: {cmp_.n_mismatch} mism.")
     print(f"| {batch.view} | {batch.kind} | " + " | ".join(cells) + f" | {'; '.join(errors) or '0 mism.'} |",
           flush=True)
+
+
+def morton3(q: np.ndarray) -> np.ndarray:
+    """Morton codes of (n, 3) integer coordinates in [0, 1024)."""
+    def spread(v):
+        v = v.astype(np.uint64) & 0x3FF
+        v = (v | (v << 16)) & 0x030000FF
+        v = (v | (v << 8)) & 0x0300F00F
+        v = (v | (v << 4)) & 0x030C30C3
+        return (v | (v << 2)) & 0x09249249
+    return spread(q[:, 0]) << 2 | spread(q[:, 1]) << 1 | spread(q[:, 2])
+
+
+def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """A permutation of the rays: stable by direction octant, then (morton) the origin's Morton code or
+    (dir) the direction's quantised angles."""
+    d = np.asarray(directions, np.float64)
+    octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
+    if kind == "oct":
+        return np.argsort(octant, kind="stable")
+    if kind == "morton":
+        o = np.asarray(origins, np.float64)
+        lo, hi = o.min(0), o.max(0)
+        q = ((o - lo) / np.maximum(hi - lo, 1e-30) * 1023).astype(np.int64)
+        return np.argsort(octant << 30 | morton3(q), kind="stable")
+    theta = np.arccos(np.clip(d[:, 2], -1, 1)) / np.pi
+    phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+    key = (theta * 1023).astype(np.uint64) << 10 | (phi * 1023).astype(np.uint64)
+    return np.argsort(octant << 20 | key, kind="stable")
+
+
+class Unpermuted:
+    """A trace result's hits back in the rays' own order."""
+    def __init__(self, r, perm):
+        self.tri = np.empty_like(r.tri)
+        self.t = np.empty_like(r.t)
+        self.tri[perm] = r.tri
+        self.t[perm] = r.t
 
 
 def carveout(backend, percent: int):
@@ -110,16 +153,20 @@ def main(argv=None) -> None:
             width = batch.size if kind == "primary" else None
             best = {c: [] for c, _, _ in configs}
             last = {}
+            perms = {c: ray_order(d["sort"], batch.origins, batch.directions) for c, _, d in configs if "sort" in d}
             for _ in range(a.rounds):
                 for c, variant, defines in configs:
-                    d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout")}
+                    d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort")}
+                    perm = perms.get(c)
+                    o, dirs = (batch.origins, batch.directions) if perm is None else \
+                        (np.ascontiguousarray(batch.origins[perm]), np.ascontiguousarray(batch.directions[perm]))
                     with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
                                            else tracing.fetches_rays), \
                             carveout(backend, defines.get("carveout", -1)):
-                        r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
-                                  repeats=a.repeats, warmup=1, width=None if a.rows else width, defines=d)
+                        r = trace(batch.scene, o, dirs, backend, variant, repeats=a.repeats, warmup=1,
+                                  width=None if (a.rows or perm is not None) else width, defines=d)
                     best[c].append(min(r.launches_ms))
-                    last[c] = r
+                    last[c] = r if perm is None else Unpermuted(r, perm)
             print_row(batch, best, last, peers.get((view, kind, a.size), {}).get("best"))
 
 

@@ -2,9 +2,12 @@
 # How far the library's kernels are from what the H100 can do: Nsight Compute's speed-of-light,
 # compute-workload and occupancy sections for trace() (primary rays in tiles, diffuse rays; the GPU
 # default, CUDA) and the kernels of one Whitted frame (SPONZA, shadows + 3 bounces, wavefront), and
-# the camera rays of trace() with and without their image's width (tiles unasked, rows, width=).
-# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh
+# the camera rays of trace() with and without their image's width (tiles unasked, rows, width=);
+# with `stalls`, in place of those, the warp-state statistics (the cycles a warp spends between two
+# issued instructions, by stall reason) and the L1 and L2 hit rates of the same kernels.
+# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls]
 set -u
+PART=${1:-limit}
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
 SECTIONS="--section SpeedOfLight --section ComputeWorkloadAnalysis --section Occupancy --section LaunchStats"
@@ -17,16 +20,25 @@ view, kind = sys.argv[1].split(":")
 b = make_rays(view, kind, 1024, check_rays=1)
 trace(b.scene, b.origins, b.directions, "cuda", width=1024 if kind == "primary" else None, repeats=2)
 PY
-for c in sponza/inside:primary sponza/inside:diffuse conference/inside:primary conference/inside:diffuse; do
+CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:primary conference/inside:diffuse"
+TAG=ncu; WHITTED_SKIP=10; WHITTED_KERNELS=.
+if [ "$PART" = stalls ]; then
+  SECTIONS="--section WarpStateStats --section MemoryWorkloadAnalysis --section SpeedOfLight --page raw"
+  KEYS="gpu__time_duration.sum|smsp__average_warp_latency_per_inst_issued.ratio|smsp__average_warps_issue_stalled_[a-z_]+_per_issue_active.ratio|l1tex__t_sector_hit_rate.pct|lts__t_sector_hit_rate.pct|smsp__thread_inst_executed_per_inst_executed.ratio"
+  CASES="sponza/inside:primary conference/inside:primary conference/inside:diffuse dragon/fill:diffuse"
+  TAG=stall; WHITTED_SKIP=8; WHITTED_KERNELS=trace   # the trace launches of the third frame
+fi
+for c in $CASES; do
   tag=$(echo "$c" | tr '/:' '__')
-  timeout 200 ncu --kernel-name regex:trace_ray --launch-skip 1 --launch-count 1 $SECTIONS \
-      python /tmp/one_trace.py "$c" > "$OUT/ncu_$tag.txt" 2>&1
-  echo "== $c"; grep -E "  ($KEYS) " "$OUT/ncu_$tag.txt" | sed 's/  */ /g'
+  timeout 240 ncu --kernel-name regex:trace_ray --launch-skip 1 --launch-count 1 $SECTIONS \
+      python /tmp/one_trace.py "$c" > "$OUT/${TAG}_$tag.txt" 2>&1
+  echo "== $c"; grep -E "^ *($KEYS) " "$OUT/${TAG}_$tag.txt" | sed 's/  */ /g'
 done
-timeout 200 ncu --kernel-name regex:. --launch-skip 10 --launch-count 5 $SECTIONS \
+timeout 240 ncu --kernel-name regex:$WHITTED_KERNELS --launch-skip $WHITTED_SKIP --launch-count 5 $SECTIONS \
   python -m rtlab render sponza --backend cuda --size 1024 --bounces 3 --materials paper --shadows one-pass \
-  --schedule wavefront --traversal bvh --isect moller --block 8x8 --repeats 3 --out /tmp/w.png > "$OUT/ncu_whitted.txt" 2>&1
-echo "== whitted sponza"; grep -E "^  [a-z_]+|  ($KEYS) " "$OUT/ncu_whitted.txt" | sed 's/  */ /g' | head -80
+  --schedule wavefront --traversal bvh --isect moller --block 8x8 --repeats 3 --out /tmp/w.png > "$OUT/${TAG}_whitted.txt" 2>&1
+echo "== whitted sponza"; grep -E "^  [a-z_]+ \(|^ *($KEYS) " "$OUT/${TAG}_whitted.txt" | sed 's/  */ /g'
+[ "$PART" = stalls ] && exit 0
 cat > /tmp/tiles.py <<'PY'
 import numpy as np, rtlab
 from rtlab.benches.rays import view_scene
