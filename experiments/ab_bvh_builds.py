@@ -12,15 +12,14 @@ the builder's defaults. Each configuration gets its own DeviceScene, so the tree
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from unittest import mock
 
-from ab_trace_configs import print_row       # experiments/ is on the path when run as a script
+from ab_trace_configs import ab_arguments, ab_batches, print_row   # experiments/ is on the path as a script
 from rtlab.accel import bvh_stats
 from rtlab.accel.bvh import BvhBuildParams, load_or_build_bvh
 from rtlab.backends import get_backend
-from rtlab.benches.rays import make_rays, peer_figures
+from rtlab.benches.rays import peer_figures
 from rtlab.device import device_scene as device_scene_module
 from rtlab.device import tracing
 from rtlab.device.device_scene import AccelArrays, DeviceScene, NO_NODES
@@ -71,50 +70,33 @@ def upload(backend, scene, changes: dict):
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--backend", default="cuda")
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--views", default="bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside")
-    ap.add_argument("--kinds", default="primary,diffuse")
-    ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--configs", default="base;ml4")
-    ap.add_argument("--rounds", type=int, default=4)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap = ab_arguments(__doc__.split("\n")[0], "base;ml4", 4)
     ap.add_argument("--variant", default=None, help="a variant reading the \"bvh\" family (default: the backend's default)")
     a = ap.parse_args(argv)
     backend = get_backend(a.backend, a.device)
     variant = tracing.resolve_variant(a.variant or None, backend)
     configs = [(c, parse_params(c)) for c in a.configs.split(";")]
     peers = peer_figures()
-    print(f"device: {backend.name}: {backend.device_name}; variant {variant.label()}; {a.rounds} rounds x best of "
-          f"{a.repeats}")
-    print("| view | kind | " + " | ".join(c for c, _ in configs) + " | errors |")
-    print("|---|---|" + "---:|" * len(configs) + "---|")
     scenes = {}
-    for kind in a.kinds.split(","):
-        for view in a.views.split(","):
-            if kind == "diffuse" and view == "bunny/far":
-                continue
-            batch = make_rays(view, kind, a.size)
-            key = view.split("/")[0]
-            if key not in scenes:
-                scenes[key] = {c: upload(backend, batch.scene, ch) for c, ch in configs}
-                for c, (_, _, info) in scenes[key].items():
-                    print(f"<!-- {key} {c}: {info} -->", flush=True)
-            width = batch.size if kind == "primary" else None
-            best = {c: [] for c, _ in configs}
-            last = {}
-            for _ in range(a.rounds):
-                for c, _ in configs:
-                    ds, builder, _ = scenes[key][c]
-                    with mock.patch.object(tracing, "device_scene", lambda *_args, **_kw: ds), \
-                            mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
-                        r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
-                                  repeats=a.repeats, warmup=1, width=width)
-                    best[c].append(min(r.launches_ms))
-                    last[c] = r
-            print_row(batch, best, last, peers.get((view, kind, a.size), {}).get("best"))
-
+    for batch in ab_batches(a, backend, f"variant {variant.label()}", [c for c, _ in configs]):
+        key = batch.view.split("/")[0]
+        if key not in scenes:
+            scenes[key] = {c: upload(backend, batch.scene, ch) for c, ch in configs}
+            for c, (_, _, info) in scenes[key].items():
+                print(f"<!-- {key} {c}: {info} -->", flush=True)
+        width = batch.size if batch.kind == "primary" else None
+        best = {c: [] for c, _ in configs}
+        last = {}
+        for _ in range(a.rounds):
+            for c, _ in configs:
+                ds, builder, _ = scenes[key][c]
+                with mock.patch.object(tracing, "device_scene", lambda *_args, **_kw: ds), \
+                        mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
+                    r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
+                              repeats=a.repeats, warmup=1, width=width)
+                best[c].append(min(r.launches_ms))
+                last[c] = r
+        print_row(batch, best, last, peers.get((batch.view, batch.kind, a.size), {}).get("best"))
 
 if __name__ == "__main__":
     main()

@@ -125,49 +125,60 @@ def carveout(backend, percent: int):
     return mock.patch.object(CudaProgram, "prepared", with_carveout)
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def ab_arguments(description: str, configs: str, rounds: int) -> argparse.ArgumentParser:
+    """The options every A/B tool here takes (each adds its own)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--backend", default="cuda")
     ap.add_argument("--device", default=None)
     ap.add_argument("--views", default="bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside")
     ap.add_argument("--kinds", default="primary,diffuse")
     ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--configs", default="bvh")
-    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--configs", default=configs)
+    ap.add_argument("--rounds", type=int, default=rounds)
     ap.add_argument("--repeats", type=int, default=5)
+    return ap
+
+
+def ab_batches(a, backend, label: str, names: list[str]):
+    """Print the table's head, then yield the benchmark rays of each view and kind asked for (diffuse
+    rays need hits: none for bunny/far)."""
+    print(f"device: {backend.name}: {backend.device_name}; {label}; {a.rounds} rounds x best of {a.repeats}")
+    print("| view | kind | " + " | ".join(names) + " | errors |")
+    print("|---|---|" + "---:|" * len(names) + "---|")
+    for kind in a.kinds.split(","):
+        for view in a.views.split(","):
+            if kind == "diffuse" and view == "bunny/far":
+                continue
+            yield make_rays(view, kind, a.size)
+
+
+def main(argv=None) -> None:
+    ap = ab_arguments(__doc__.split("\n")[0], "bvh", 5)
     ap.add_argument("--rows", action="store_true", help="primary rays as plain rows (no width=): trace()'s list path")
     a = ap.parse_args(argv)
     backend = get_backend(a.backend, a.device)
     base = default_variant(backend)
     configs = [(c, *parse_config(c, base)) for c in a.configs.split(";")]
     peers = peer_figures()
-    print(f"device: {backend.name}: {backend.device_name}; base variant {base.label()}; {a.rounds} rounds x best of "
-          f"{a.repeats}")
-    print("| view | kind | " + " | ".join(c for c, _, _ in configs) + " | errors |")
-    print("|---|---|" + "---:|" * len(configs) + "---|")
-    for kind in a.kinds.split(","):
-        for view in a.views.split(","):
-            if kind == "diffuse" and view == "bunny/far":
-                continue
-            batch = make_rays(view, kind, a.size)
-            width = batch.size if kind == "primary" else None
-            best = {c: [] for c, _, _ in configs}
-            last = {}
-            perms = {c: ray_order(d["sort"], batch.origins, batch.directions) for c, _, d in configs if "sort" in d}
-            for _ in range(a.rounds):
-                for c, variant, defines in configs:
-                    d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort")}
-                    perm = perms.get(c)
-                    o, dirs = (batch.origins, batch.directions) if perm is None else \
-                        (np.ascontiguousarray(batch.origins[perm]), np.ascontiguousarray(batch.directions[perm]))
-                    with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
-                                           else tracing.fetches_rays), \
-                            carveout(backend, defines.get("carveout", -1)):
-                        r = trace(batch.scene, o, dirs, backend, variant, repeats=a.repeats, warmup=1,
-                                  width=None if (a.rows or perm is not None) else width, defines=d)
-                    best[c].append(min(r.launches_ms))
-                    last[c] = r if perm is None else Unpermuted(r, perm)
-            print_row(batch, best, last, peers.get((view, kind, a.size), {}).get("best"))
+    for batch in ab_batches(a, backend, f"base variant {base.label()}", [c for c, _, _ in configs]):
+        width = batch.size if batch.kind == "primary" else None
+        best = {c: [] for c, _, _ in configs}
+        last = {}
+        perms = {c: ray_order(d["sort"], batch.origins, batch.directions) for c, _, d in configs if "sort" in d}
+        for _ in range(a.rounds):
+            for c, variant, defines in configs:
+                d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort")}
+                perm = perms.get(c)
+                o, dirs = (batch.origins, batch.directions) if perm is None else \
+                    (np.ascontiguousarray(batch.origins[perm]), np.ascontiguousarray(batch.directions[perm]))
+                with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
+                                       else tracing.fetches_rays), \
+                        carveout(backend, defines.get("carveout", -1)):
+                    r = trace(batch.scene, o, dirs, backend, variant, repeats=a.repeats, warmup=1,
+                              width=None if (a.rows or perm is not None) else width, defines=d)
+                best[c].append(min(r.launches_ms))
+                last[c] = r if perm is None else Unpermuted(r, perm)
+        print_row(batch, best, last, peers.get((batch.view, batch.kind, a.size), {}).get("best"))
 
 
 if __name__ == "__main__":

@@ -1,44 +1,59 @@
 #!/bin/bash
-# How far the library's kernels are from what the H100 can do: Nsight Compute's speed-of-light,
-# compute-workload and occupancy sections for trace() (primary rays in tiles, diffuse rays; the GPU
-# default, CUDA) and the kernels of one Whitted frame (SPONZA, shadows + 3 bounces, wavefront), and
-# the camera rays of trace() with and without their image's width (tiles unasked, rows, width=);
-# with `stalls`, in place of those, the warp-state statistics (the cycles a warp spends between two
-# issued instructions, by stall reason) and the L1 and L2 hit rates of the same kernels.
-# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls]
+# How far the library's kernels are from what the H100 can do, by Nsight Compute, for trace()
+# (primary rays in tiles, diffuse rays; the GPU default, CUDA) and the kernels of one Whitted frame
+# (SPONZA, shadows + 3 bounces, wavefront, bvh/Moller/8x8). Parts:
+#   limit (default): speed-of-light, compute-workload and occupancy sections, then the camera rays of
+#     trace() with and without their image's width (tiles unasked, rows, width=);
+#   stalls: the warp-state statistics (the cycles a warp spends between two issued instructions, by
+#     stall reason) and the L1 and L2 hit rates;
+#   lanes: threads active per executed warp instruction (of 32), instructions, SM cycles, warps active:
+#     whether divergence or instruction count bounds a kernel. CASES and DEFINES (-D NAME=V for the
+#     trace cases) and NO_WHITTED=1 narrow it.
+# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls|lanes]
 set -u
 PART=${1:-limit}
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
-SECTIONS="--section SpeedOfLight --section ComputeWorkloadAnalysis --section Occupancy --section LaunchStats"
-KEYS="Duration|Compute \(SM\) Throughput|Memory Throughput|DRAM Throughput|L1/TEX Cache Throughput|L2 Cache Throughput|Issue Slots Busy|Issued Ipc Active|Executed Ipc Active|Achieved Occupancy|Theoretical Occupancy|Registers Per Thread|Block Size"
 cat > /tmp/one_trace.py <<'PY'
 import sys
 from rtlab.benches.rays import make_rays
 from rtlab.device.tracing import trace
 view, kind = sys.argv[1].split(":")
 b = make_rays(view, kind, 1024, check_rays=1)
-trace(b.scene, b.origins, b.directions, "cuda", width=1024 if kind == "primary" else None, repeats=2)
+trace(b.scene, b.origins, b.directions, "cuda", width=1024 if kind == "primary" else None, repeats=2,
+      defines={k: int(v) for k, v in (a.split("=") for a in sys.argv[2:])} or None)
 PY
-CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:primary conference/inside:diffuse"
-TAG=ncu; WHITTED_SKIP=10; WHITTED_KERNELS=.
-if [ "$PART" = stalls ]; then
+case "$PART" in
+limit)
+  SECTIONS="--section SpeedOfLight --section ComputeWorkloadAnalysis --section Occupancy --section LaunchStats"
+  KEYS="Duration|Compute \(SM\) Throughput|Memory Throughput|DRAM Throughput|L1/TEX Cache Throughput|L2 Cache Throughput|Issue Slots Busy|Issued Ipc Active|Executed Ipc Active|Achieved Occupancy|Theoretical Occupancy|Registers Per Thread|Block Size"
+  DEFAULT_CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:primary conference/inside:diffuse"
+  WHITTED_SKIP=10; WHITTED_KERNELS=. ;;
+stalls)
   SECTIONS="--section WarpStateStats --section MemoryWorkloadAnalysis --section SpeedOfLight --page raw"
   KEYS="gpu__time_duration.sum|smsp__average_warp_latency_per_inst_issued.ratio|smsp__average_warps_issue_stalled_[a-z_]+_per_issue_active.ratio|l1tex__t_sector_hit_rate.pct|lts__t_sector_hit_rate.pct|smsp__thread_inst_executed_per_inst_executed.ratio"
-  CASES="sponza/inside:primary conference/inside:primary conference/inside:diffuse dragon/fill:diffuse"
-  TAG=stall; WHITTED_SKIP=8; WHITTED_KERNELS=trace   # the trace launches of the third frame
-fi
+  DEFAULT_CASES="sponza/inside:primary conference/inside:primary conference/inside:diffuse dragon/fill:diffuse"
+  WHITTED_SKIP=8; WHITTED_KERNELS=trace ;;   # the trace launches of the third frame
+lanes)
+  SECTIONS="--metrics smsp__thread_inst_executed_per_inst_executed.ratio,smsp__inst_executed.sum,sm__cycles_active.avg,gpu__time_duration.sum,sm__warps_active.avg.pct_of_peak_sustained_active"
+  KEYS="smsp__[a-z_.]+|sm__[a-z_.]+|gpu__[a-z_.]+"
+  DEFAULT_CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:diffuse dragon/fill:diffuse"
+  WHITTED_SKIP=10; WHITTED_KERNELS=. ;;
+*) echo "unknown part $PART: limit, stalls or lanes" >&2; exit 2 ;;
+esac
+CASES=${CASES:-$DEFAULT_CASES}
 for c in $CASES; do
   tag=$(echo "$c" | tr '/:' '__')
   timeout 240 ncu --kernel-name regex:trace_ray --launch-skip 1 --launch-count 1 $SECTIONS \
-      python /tmp/one_trace.py "$c" > "$OUT/${TAG}_$tag.txt" 2>&1
-  echo "== $c"; grep -E "^ *($KEYS) " "$OUT/${TAG}_$tag.txt" | sed 's/  */ /g'
+      python /tmp/one_trace.py "$c" ${DEFINES:-} > "$OUT/${PART}_$tag.txt" 2>&1
+  echo "== $c ${DEFINES:-}"; grep -E "^ *($KEYS) " "$OUT/${PART}_$tag.txt" | sed 's/  */ /g'
 done
+[ -n "${NO_WHITTED:-}" ] && exit 0
 timeout 240 ncu --kernel-name regex:$WHITTED_KERNELS --launch-skip $WHITTED_SKIP --launch-count 5 $SECTIONS \
   python -m rtlab render sponza --backend cuda --size 1024 --bounces 3 --materials paper --shadows one-pass \
-  --schedule wavefront --traversal bvh --isect moller --block 8x8 --repeats 3 --out /tmp/w.png > "$OUT/${TAG}_whitted.txt" 2>&1
-echo "== whitted sponza"; grep -E "^  [a-z_]+ \(|^ *($KEYS) " "$OUT/${TAG}_whitted.txt" | sed 's/  */ /g'
-[ "$PART" = stalls ] && exit 0
+  --schedule wavefront --traversal bvh --isect moller --block 8x8 --repeats 3 --out /tmp/w.png > "$OUT/${PART}_whitted.txt" 2>&1
+echo "== whitted sponza"; grep -E "^  [a-z_]+ \(|^ *($KEYS) " "$OUT/${PART}_whitted.txt" | sed 's/  */ /g'
+[ "$PART" = limit ] || exit 0
 cat > /tmp/tiles.py <<'PY'
 import numpy as np, rtlab
 from rtlab.benches.rays import view_scene

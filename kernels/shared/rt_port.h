@@ -246,13 +246,11 @@ RT_FN void rt_atomic_add_float(volatile RT_GLOBAL float *p, float v)
 
 /* ---- Warp occupancy (the BVH's ray fetch, rt_bvh.h): how many threads of the warp run this
  * instruction together now. CUDA: the active mask's population. NVIDIA's OpenCL: the same PTX,
- * inline (RT_NV_PTX: the host sets it on NVIDIA's platform). Elsewhere (PoCL: no warps) 1, and
- * RT_HAS_WARP_VOTE is 0: the host does not use what needs it there. */
+ * inline (RT_NV_PTX: the host sets it on NVIDIA's platform). Elsewhere (PoCL: no warps) 1; the host
+ * launches what relies on the count only where the device has warps (Backend.has_warp_votes). */
 #if defined(__CUDACC__)
-#define RT_HAS_WARP_VOTE 1
 #define rt_warp_active() __popc(__activemask())
 #elif defined(RT_NV_PTX) && RT_NV_PTX
-#define RT_HAS_WARP_VOTE 1
 RT_FN int rt_warp_active(void)
 {
     int n;
@@ -260,7 +258,6 @@ RT_FN int rt_warp_active(void)
     return n;
 }
 #else
-#define RT_HAS_WARP_VOTE 0
 #define rt_warp_active() 1
 #endif
 

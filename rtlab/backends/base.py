@@ -142,8 +142,8 @@ class Backend(ABC):
     def is_gpu(self) -> bool: ...
 
     def has_warp_votes(self) -> bool:
-        """Whether the kernels can count the threads of a warp (rt_port.h's RT_HAS_WARP_VOTE): CUDA, and
-        NVIDIA's OpenCL through inline PTX."""
+        """Whether the kernels can count the threads of a warp (rt_port.h's rt_warp_active): CUDA, and
+        NVIDIA's OpenCL through inline PTX; elsewhere the count is 1."""
         return False
 
     def describe(self) -> str:
