@@ -213,6 +213,22 @@ def test_whitted_program_cap_reaches_nvcc():
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
+def test_trace_program_cap_reaches_nvcc():
+    """The 4-wide BVH's ray fetch kernel needs more than 64 registers uncapped; with the options the
+    loader gives library_trace for it, it takes at most 64 (32 warps an SM in 128-thread blocks). The
+    binary BVH's trace kernels get no cap (ptxas would take it as leave to use more)."""
+    features = SceneFeatures(stack_size=48, near_origin=True)
+    src = kernel_source("library_trace", "cuda")
+    wide = build_defines(Variant(traversal="bvh4", intersection="watertight", block=(8, 16)), features)
+    free = nvcc_resources(src, wide)["trace_rays_fetch"].registers
+    assert free > 64, f"bvh4's trace_rays_fetch needs only {free} registers: the cap no longer binds"
+    options = build_options(Variant(traversal="bvh4"), "cuda", "library_trace")
+    assert nvcc_resources(src, wide, extra_options=options)["trace_rays_fetch"].registers <= 64
+    assert build_options(Variant(traversal="bvh"), "cuda", "library_trace") == ()
+    assert build_options(Variant(traversal="bvh4", max_registers=48), "cuda", "library_trace") == ("-maxrregcount=48",)
+
+
+@pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
 def test_register_cap_reaches_nvcc():
     defines = build_defines(Variant.paper(), SceneFeatures(stack_size=32))
     src = kernel_source("00_primary", "cuda")

@@ -261,8 +261,9 @@ def test_camera_rays_go_in_tiles_without_being_asked(backend, small_scene, monke
     assert type(o + d) is np.ndarray and getattr(o[::2], "image_width", None) is None
 
 
-@pytest.mark.parametrize("isect", ["watertight", "moller"])
-def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, isect, monkeypatch):
+@pytest.mark.parametrize("traversal,isect", [("bvh", "watertight"), ("bvh", "moller"), ("bvh4", "watertight"),
+                                             ("bvh4", "moller")])
+def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, isect, monkeypatch):
     """trace_rays_fetch (a lane takes the next ray when its own is done; the walk resumes after each
     refill) returns trace_rays' hits bit for bit, on incoherent rays of a real scene, rays that miss
     the scene box and an empty tail of threads. Forced on every backend: on PoCL (no warps) each lane
@@ -276,7 +277,7 @@ def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, isect, monk
     away = rng.normal(size=(257, 3)).astype(np.float32)                   # from far outside, most miss
     bo = np.concatenate([bo, np.full((257, 3), 1e3, np.float32)])
     bd = np.concatenate([bd, away])
-    variant = Variant(traversal="bvh", intersection=isect)
+    variant = Variant(traversal=traversal, intersection=isect)
     launched = []
     real = tracing._fetch_launch
     monkeypatch.setattr(tracing, "_fetch_launch", lambda *a, **k: launched.append(1) or real(*a, **k))
@@ -296,6 +297,7 @@ def test_rays_are_fetched_only_by_the_library_where_the_device_has_warps(backend
     from rtlab.device.tracing import fetches_rays
     bvh = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
     assert fetches_rays(backend, bvh, "library_trace") == backend.has_warp_votes()
+    assert fetches_rays(backend, bvh.with_(traversal="bvh4"), "library_trace") == backend.has_warp_votes()
     assert not fetches_rays(backend, bvh, "03_traversal")                  # the labs' kernels: trace_rays
     assert not fetches_rays(backend, bvh.with_(count_work=True), "library_trace")
     assert not fetches_rays(backend, bvh.with_(traversal="stack"), "library_trace")

@@ -11,8 +11,8 @@ import pytest
 import rtlab
 from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import SceneFeatures, TRACE_THREADS, build_defines, kernel_source, load_program
-from rtlab.device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, ISECT_FUNCTIONS, LAB_PROGRAMS,
-                                   LIBRARY_PROGRAMS, PAPER_VARIANT, SCALAR_CPU_VARIANT, TRAVERSAL_SPECS, TRAVERSALS,
+from rtlab.device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, GPU_RAYS_VARIANT, ISECT_FUNCTIONS,
+                                   LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, SCALAR_CPU_VARIANT, TRAVERSAL_SPECS, TRAVERSALS,
                                    Variant, default_variant, program_for, resolve_variant)
 from rtlab.errors import VariantError
 from rtlab.kernel_constants import kernel_constant
@@ -60,6 +60,11 @@ def test_a_variant_leaves_the_rest_to_the_device():
     assert resolve_variant(Variant(intersection="moller", block=(16, 4)), "cpu") == \
         Variant("bvh-packet", "moller", block=(16, 4))
     assert resolve_variant("bvh4", "gpu") == GPU_DEFAULT_VARIANT.with_(traversal="bvh4")
+    # rays through trace() on a GPU: the 4-wide BVH where the traversal is left open, frames the binary one
+    assert resolve_variant(None, "gpu", rays=True) == GPU_RAYS_VARIANT == GPU_DEFAULT_VARIANT.with_(traversal="bvh4")
+    assert resolve_variant("moller", "gpu", rays=True) == Variant("bvh4", "moller", block=(8, 16))
+    assert resolve_variant("stack", "gpu", rays=True) == Variant("stack", "watertight", block=(8, 16))
+    assert resolve_variant(None, "cpu", rays=True) == CPU_DEFAULT_VARIANT
     assert SCALAR_CPU_VARIANT.unresolved() == CPU_DEFAULT_VARIANT.unresolved() == []
     with pytest.raises(VariantError, match="leaves its traversal to the device"):
         build_defines(Variant(), SceneFeatures())

@@ -242,17 +242,24 @@ typedef struct {
     int sp;
 } BvhTrace;
 
-/* Start tracing a ray: ref BVH_DONE at once where it misses the scene box */
+/* Start a fetched walk (this one and rt_bvh4.h's): no hit, an empty stack, the root next, or ref
+ * BVH_DONE at once where the ray misses the scene box; 1 and the scene box's exit in *t_exit where
+ * the walk goes on (its per-ray constants are the caller's). */
+RT_FN int bvh_walk_start(const Ray *ray, Hit *hit, int *ref, int *sp, float4 scene_min, float4 scene_max,
+                         float *t_exit)
+{
+    float t_enter;
+    *hit = make_miss(ray->tmax);
+    *sp = 0;
+    *ref = clip_ray_box(ray, scene_min, scene_max, &t_enter, t_exit) ? 0 : BVH_DONE;
+    return *ref == 0;
+}
+
 RT_FN void bvh_trace_start(BvhTrace *s, float4 scene_min, float4 scene_max)
 {
-    float t_enter, t_exit;
-    s->hit = make_miss(s->ray.tmax);
-    s->sp = 0;
-    s->ref = BVH_DONE;
-    if (clip_ray_box(&s->ray, scene_min, scene_max, &t_enter, &t_exit)) {
+    float t_exit;
+    if (bvh_walk_start(&s->ray, &s->hit, &s->ref, &s->sp, scene_min, scene_max, &t_exit))
         s->fused = bvh_ray(&s->ray, t_exit);
-        s->ref = 0;
-    }
 }
 
 /* Trace until the ray is done (ref BVH_DONE) or the warp has fewer than RT_FETCH_THRESHOLD lanes

@@ -2,12 +2,15 @@
  * per plane (lo.x of the four children, hi.x, ...: a structure of arrays, as in Embree's BVH4), the
  * near and far planes picked per ray by row (no per-child select), the children hit entered nearest
  * first and the others pushed with their entry distance, so that a popped child beyond the closest
- * hit so far is dropped (pop culling). Built by rtlab/accel/bvh4.py: the optimal collapse of
- * Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH trees. Why 4 and
- * not 8: on the benchmark views (experiments/bench_wide_bvh_quality.py, host mirrors) this traversal
- * tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits, where the compressed
- * 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x the boxes, each box
- * dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes tested count.
+ * hit so far is dropped (pop culling). A pushed child is its node's row and its sort key; its ref is
+ * read from the node when it is popped and not culled, so a visit picks one ref from the refs row
+ * (the nearest child's) and pushes only when a second child is hit. Built by rtlab/accel/bvh4.py: the
+ * optimal collapse of Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH
+ * trees. Why 4 and not 8: on the benchmark views (experiments/bench_wide_bvh_quality.py, host
+ * mirrors) this traversal tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits,
+ * where the compressed 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x
+ * the boxes, each box dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes
+ * tested count. It is trace()'s GPU default (rtlab.device.variants.GPU_RAYS_VARIANT).
  *
  * Node layout in node_data, 7 float4 = 112 B per node (sync with rtlab/accel/bvh4.py):
  *   [row + 0] = lo.x of children 0-3    [row + 1] = hi.x
@@ -33,10 +36,11 @@
 #define BVH4_NONE (-2147483647 - 1)  /* no child: not a leaf ref (its row would be 2^27 - 1) */
 #define BVH4_MISS 0x7FFFFFFF         /* the sort key of a child not hit */
 
-/* A pending child: its ref and its box's entry distance (rounded down to the sort key's bits) */
+/* A pending child: the row of the node that holds it and its sort key (bvh4_key: the entry distance's
+ * bits with the child's slot in the two low bits) */
 typedef struct {
-    int ref;
-    float t;
+    int row;
+    int key;
 } Bvh4Entry;
 
 typedef struct {
@@ -77,15 +81,6 @@ RT_FN int bvh4_key(float tx0, float ty0, float tz0, float tx1, float ty1, float 
     return t0 <= t1 ? ((rt_as_int(t0) & ~3) | slot) : BVH4_MISS;
 }
 
-/* Child ref of slot k (0-3) of a node's ref row, by selects on k's two bits (a run-time index into a
- * register vector would go through local memory, §3.1.1; nested ?: became branches) */
-RT_FN int bvh4_child(float4 refs, int k)
-{
-    float lo = (k & 1) ? refs.y : refs.x;
-    float hi = (k & 1) ? refs.w : refs.z;
-    return rt_as_int((k & 2) ? hi : lo);
-}
-
 RT_FN void bvh4_order(int *a, int *b)
 {
     int lo = rt_imin(*a, *b), hi = rt_imax(*a, *b);
@@ -93,8 +88,8 @@ RT_FN void bvh4_order(int *a, int *b)
     *b = hi;
 }
 
-/* Test the four children of the node at row `row`; push all hit but the nearest (farthest first, with
- * their entry distances) and return the nearest, or BVH4_NONE when none is hit. */
+/* Test the four children of the node at row `row`; push all hit but the nearest (farthest first) and
+ * return the nearest, or BVH4_NONE when none is hit. */
 RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bvh4Entry *stack, int *sp)
 {
     float4 nx = load_node_data(node_data, row + r->near_x), fx = load_node_data(node_data, row + (r->near_x ^ 1));
@@ -117,21 +112,50 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     bvh4_order(&k1, &k2);
     if (k0 == BVH4_MISS)
         return BVH4_NONE;
-    float4 refs = load_node_data(node_data, row + 6);
-    /* Push the others farthest first, without branches: a miss is written and then overwritten
-     * (misses sort last, so the entries pushed are exactly the hits; the stack has 3 spare entries) */
-    int n = *sp;
-    stack[n].ref = bvh4_child(refs, k3 & 3);
-    stack[n].t = rt_as_float(k3 & ~3);
-    n += k3 != BVH4_MISS;
-    stack[n].ref = bvh4_child(refs, k2 & 3);
-    stack[n].t = rt_as_float(k2 & ~3);
-    n += k2 != BVH4_MISS;
-    stack[n].ref = bvh4_child(refs, k1 & 3);
-    stack[n].t = rt_as_float(k1 & ~3);
-    n += k1 != BVH4_MISS;
-    *sp = n;
-    return bvh4_child(refs, k0 & 3);
+    /* The others farthest first, where a second child is hit (misses sort last, so the hits are k1,
+     * k2, k3 in order: k3 and k2 are written and counted only if hit, the stack has 3 spare entries).
+     * No ref is picked for them here (the pop reads it): the refs row is needed for k0 only. */
+    if (k1 != BVH4_MISS) {
+        int n = *sp;
+        stack[n].row = row;
+        stack[n].key = k3;
+        n += k3 != BVH4_MISS;
+        stack[n].row = row;
+        stack[n].key = k2;
+        n += k2 != BVH4_MISS;
+        stack[n].row = row;
+        stack[n].key = k1;
+        *sp = n + 1;
+    }
+    return rt_as_int(float4_component(load_node_data(node_data, row + 6), k0 & 3));
+}
+
+/* The most recent pending child that may still hold a hit as close as t_cut, t_cull of the closest hit
+ * so far (keys of entry distances >= +0 order as ints; (key & ~3) <= t_cut as bits is key <= t_cut | 3),
+ * or BVH4_NONE */
+RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut)
+{
+    int cut = rt_as_int(t_cut) | 3;
+    while (*sp > 0) {
+        --*sp;
+        Bvh4Entry e = stack[*sp];
+        if (e.key <= cut)
+            return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
+    }
+    return BVH4_NONE;
+}
+
+/* Test the triangles of leaf ref `leaf`; returns 1 when an any-hit query may stop */
+RT_FN int bvh4_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit, int any_hit)
+{
+    int bits = ~leaf;
+    int row = bits >> BVH4_LEAF_BITS;
+    int count = bits & ((1 << BVH4_LEAF_BITS) - 1);
+    for (int i = 0; i < count; ++i) {
+        if (intersect_bvh8_tri(RT_SCENE_ARGS, row + BVH8_TRI_ROWS * i, ray, hit) && any_hit)
+            return 1;
+    }
+    return 0;
 }
 
 /* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
@@ -152,25 +176,47 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
             ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp);
         /* A leaf: its triangles' rows */
         if (ref != BVH4_NONE) {
-            int bits = ~ref;
-            int row = bits >> BVH4_LEAF_BITS;
-            int count = bits & ((1 << BVH4_LEAF_BITS) - 1);
-            for (int i = 0; i < count; ++i) {
-                if (intersect_bvh8_tri(RT_SCENE_ARGS, row + BVH8_TRI_ROWS * i, ray, hit) && any_hit)
-                    return;
-            }
+            if (bvh4_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
+                return;
             t_cut = t_cull(hit->t);
         }
-        /* The most recent pending child that may still hold a hit as close as the closest so far */
-        ref = BVH4_NONE;
-        while (sp > 0) {
-            --sp;
-            if (stack[sp].t <= t_cut) {
-                ref = stack[sp].ref;
-                break;
-            }
-        }
+        ref = bvh4_pop(RT_SCENE_ARGS, stack, &sp, t_cut);
         if (ref == BVH4_NONE)
+            return;
+    }
+}
+
+/* traverse_bvh4's closest hit with its state kept across returns, for rays fetched as lanes free up
+ * (trace_rays_fetch, rt_entry_trace.h; rt_bvh.h's bvh_trace_steps is the binary BVH's and says how) */
+typedef struct {
+    Ray ray;
+    Bvh4Ray fused;
+    Hit hit;
+    int ref;                               /* next node: inner >= 0, leaf < 0, BVH_DONE */
+    int sp;
+} Bvh4Trace;
+
+RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
+{
+    float t_exit;
+    if (bvh_walk_start(&s->ray, &s->hit, &s->ref, &s->sp, scene_min, scene_max, &t_exit))
+        s->fused = bvh4_ray(&s->ray, t_exit);
+}
+
+RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
+{
+    float t_cut = t_cull(s->hit.t);
+    for (;;) {
+        while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
+            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, t_cut, stack, &s->sp);
+        if (s->ref != BVH4_NONE) {
+            bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
+            t_cut = t_cull(s->hit.t);
+        }
+        s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, t_cut);
+        if (s->ref == BVH4_NONE)
+            s->ref = BVH_DONE;
+        if (s->ref == BVH_DONE || rt_warp_active() < RT_FETCH_THRESHOLD)
             return;
     }
 }

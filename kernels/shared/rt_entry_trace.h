@@ -55,7 +55,22 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) 
 #endif
 }
 
-#if RT_TRAVERSAL == RT_TRAVERSAL_BVH && defined(RT_FETCH_KERNEL)
+#if (RT_TRAVERSAL == RT_TRAVERSAL_BVH || RT_TRAVERSAL == RT_TRAVERSAL_BVH4) && defined(RT_FETCH_KERNEL)
+/* The walk kept across refills: the binary BVH's (rt_bvh.h) or the 4-wide one's (rt_bvh4.h) */
+#if RT_TRAVERSAL == RT_TRAVERSAL_BVH4
+typedef Bvh4Trace FetchTrace;
+typedef Bvh4Entry FetchEntry;
+#define RT_FETCH_STACK (RT_STACK_SIZE + 3)
+#define fetch_trace_start bvh4_trace_start
+#define fetch_trace_steps bvh4_trace_steps
+#else
+typedef BvhTrace FetchTrace;
+typedef int FetchEntry;
+#define RT_FETCH_STACK RT_STACK_SIZE
+#define fetch_trace_start bvh_trace_start
+#define fetch_trace_steps bvh_trace_steps
+#endif
+
 /* trace_rays with rays fetched as lanes free up (rt_bvh.h's bvh_trace_steps): each lane takes ray
  * after ray from *next_ray (zero before the launch) until all n_rays are taken; the same hits as
  * trace_rays. Launch as many threads as trace_rays would: those that start after the rays are
@@ -64,8 +79,8 @@ RT_KERNEL void trace_rays(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) 
 RT_KERNEL void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
                                 int n_rays, RT_GLOBAL int *next_ray RT_WITH_FRAME)
 {
-    int stack[RT_STACK_SIZE];
-    BvhTrace s;
+    FetchEntry stack[RT_FETCH_STACK];
+    FetchTrace s;
     s.ref = BVH_DONE;
     int index = -1;
     for (;;) {
@@ -79,11 +94,11 @@ RT_KERNEL void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(fl
                 return;
             float4 o = rt_load_once(&origins[index]), d = rt_load_once(&directions[index]);
             s.ray = make_ray(xyz(o), xyz(d), o.w, d.w);
-            bvh_trace_start(&s, rt_frame->scene_min, rt_frame->scene_max);
+            fetch_trace_start(&s, rt_frame->scene_min, rt_frame->scene_max);
             if (s.ref == BVH_DONE)
                 continue;
         }
-        bvh_trace_steps(RT_SCENE_ARGS, &s, stack);
+        fetch_trace_steps(RT_SCENE_ARGS, &s, stack);
     }
 }
 #endif

@@ -136,6 +136,22 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
 #define load_tri_material(tri_materials, tri) (tri_materials)[(tri)]
 #endif
 
+/* Component k (0-3) of v by selects on k's bits (a run-time index into a register vector would go
+ * through local memory, §3.1.1). Word i of node_data, four a float4 row (a child ref of rt_bvh4.h's
+ * refs row, read alone): one 4-byte read from a buffer; from a texture, its row's component. */
+RT_FN float float4_component(float4 v, int k)
+{
+    float lo = (k & 1) ? v.y : v.x, hi = (k & 1) ? v.w : v.z;
+    return (k & 2) ? hi : lo;
+}
+#if RT_NODE_MEM == RT_MEM_TEXTURE
+#define load_node_word(node_data, i) rt_as_int(float4_component(load_node_data(node_data, (i) >> 2), (i) & 3))
+#elif defined(__CUDACC__)
+#define load_node_word(node_data, i) __ldg((const int *)(node_data) + (i))
+#else
+#define load_node_word(node_data, i) (((RT_GLOBAL const int *)(node_data))[(i)])
+#endif
+
 #ifndef RT_COUNT_WORK
 #define RT_COUNT_WORK 0
 #endif
@@ -160,6 +176,7 @@ struct RtIntList;
 #undef load_tri_vertex
 #undef load_tri_normal
 #undef load_tri_material
+#undef load_node_word
 #define RT_SCENE_PARAMS                                                                         \
     RT_GLOBAL const struct RtNodeList *nodes, RT_GLOBAL const struct RtFloat4List *node_data,   \
         RT_GLOBAL const struct RtIntList *objects, RT_GLOBAL const struct RtFloat4List *tris,    \
@@ -171,6 +188,7 @@ struct RtIntList;
      ((RT_GLOBAL const type *)(list))[(i)])
 #define load_node(nodes, i) rt_counted(0, nodes, int2, i)
 #define load_node_data(node_data, i) rt_counted(0, node_data, float4, i)
+#define load_node_word(node_data, i) rt_counted(0, node_data, int, i)
 #define load_object(objects, i) rt_counted(0, objects, int, i)
 #define load_tri_data(tri_data, i) rt_counted(1, tri_data, float4, i)
 #define load_tri_vertex(tris, tri, k) rt_counted(1, tris, float4, 3 * (tri) + (k))

@@ -166,7 +166,7 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     check the subsample against the float64 reference, and for primary rays time the render kernel
     on the same camera (what trace should match)."""
     from ..device.tracing import resolve_variant, trace
-    variant = resolve_variant(variant, backend)
+    variant = resolve_variant(variant, backend, rays=True)
     # primary rays are an image: traced in tiles of the variant's block (trace's width=)
     width = batch.size if batch.kind == "primary" else None
     result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,

@@ -32,9 +32,9 @@ def info():
 
 def variants():
     """The variant registry: each traversal's code, source, function and what it reads; the programs;
-    the defaults (the library's on a GPU and a CPU, the paper's)."""
-    from ..device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, INTERSECTIONS, ISECT_FUNCTIONS,
-                                   LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, registry_rows)
+    the defaults (the library's on a GPU, for frames and for trace()'s rays, and on a CPU; the paper's)."""
+    from ..device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, GPU_RAYS_VARIANT, INTERSECTIONS,
+                                   ISECT_FUNCTIONS, LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, registry_rows)
     rows = registry_rows()
     table = Table(title="traversals (--traversal; rtlab/device/variants.py)")
     for col in rows[0]:
@@ -47,7 +47,8 @@ def variants():
     console.print("programs (kernels/cuda/NAME.cu, kernels/opencl/NAME.cl): " + ", ".join(
         f"{purpose}: library {LIBRARY_PROGRAMS.get(purpose, '-')}, lab {LAB_PROGRAMS[purpose]}"
         for purpose in LAB_PROGRAMS))
-    for what, v in (("GPU default", GPU_DEFAULT_VARIANT), ("CPU default", CPU_DEFAULT_VARIANT),
+    for what, v in (("GPU default", GPU_DEFAULT_VARIANT), ("GPU default for trace()'s rays", GPU_RAYS_VARIANT),
+                    ("CPU default", CPU_DEFAULT_VARIANT),
                     ("the paper's (labs, paper benches)", PAPER_VARIANT)):
         console.print(f"{what}: {v.label()}")
 

@@ -142,16 +142,19 @@ def rays_per_work_item(variant: Variant) -> int:
 # Register caps of library programs where the variant names none. library_bounces (the Whitted frames
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
-# refinement and run faster (docs/results.md, "Whitted: a register cap"). Kernels under the cap are
-# unchanged by it.
-LIBRARY_REGISTER_CAPS = {"library_bounces": 64}
+# refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
+# BVH: 64 as well, where its ray fetch (trace_rays_fetch) takes 66 uncapped (docs/results.md, "bvh4: a
+# cheaper visit"); only there, since ptxas reads a cap above a kernel's count as leave to use more
+# (the binary BVH's trace_ray_grid: 62 uncapped, 64 under it). Keys: a program, or (program, traversal).
+LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64}
 
 
 def build_options(variant: Variant, backend, program: str | None = None) -> tuple[str, ...]:
     """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study, or where the
     variant names none, ``program``'s LIBRARY_REGISTER_CAPS. ``backend`` is a Backend or a language
     name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
-    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get(program, 0))
+    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal))
+            or LIBRARY_REGISTER_CAPS.get(program, 0))
     if not n:
         return ()
     language = backend if isinstance(backend, str) else backend.language

@@ -16,8 +16,8 @@ from ..scene.model import Scene, image_width_of
 from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .device_scene import device_scene
-from .variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, SCALAR_CPU_VARIANT, Variant,  # noqa: F401
-                       default_variant, program_for, resolve_variant)
+from .variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, GPU_RAYS_VARIANT,  # noqa: F401
+                       SCALAR_CPU_VARIANT, Variant, default_variant, program_for, resolve_variant)
 
 TRACE_BLOCK = TRACE_THREADS    # threads a block of trace_rays (a profiler may sweep it)
 # Directions whose largest component lies outside this range are scaled by a power of two into
@@ -28,9 +28,11 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # .default_variant; a Variant() leaves its traversal, test and block to it too): the watertight test
 # (Woop et al. 2013) and its conservative traversal, which let no ray through shared edges and
 # vertices (Moller-Trumbore, the paper's test, Variant.paper(), lets some through). On a GPU
-# (GPU_DEFAULT_VARIANT) the BVH in 8x16 blocks: the fastest traversal on the benchmark views, and
-# tile-shaped warps keep neighbouring rays together. On a CPU (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet",
-# which picks per packet of 8 consecutive rays: coherent ones (directions of one octant within about
+# (GPU_DEFAULT_VARIANT) the BVH in 8x16 blocks: tile-shaped warps keep neighbouring rays together, and
+# the binary BVH is the fastest traversal of Whitted frames, whose shadow rays want their first leaf
+# soon. For rays through trace() (GPU_RAYS_VARIANT) the 4-wide BVH (rt_bvh4.h) in its place: half the
+# dependent node steps a ray, the fastest on the benchmark views' camera and diffuse rays. On a CPU
+# (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones (directions of one octant within about
 # 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
 # (diffuse bounces, rays in no order) go one by one through the same tree, a node's 8 children tested
 # in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch that mixes both is traced each
@@ -234,8 +236,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     NaN/Inf components or a zero direction are reported as misses; a finite origin beyond float32's
     range is an error. ``tmin``, ``tmax``: numbers or one per ray; tmin finite and >= 0, tmax >= tmin
     (numpy.inf: no limit); None, NaN or a reversed interval is a RtlabError naming the ray.
-    ``variant`` None: default_variant(backend) (watertight; the BVH on a GPU); a Variant keeps what it
-    names and takes what it leaves out (None) from that default; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
+    ``variant`` None: default_variant(backend, rays=True) (watertight; on a GPU the 4-wide BVH); a Variant
+    keeps what it names and takes what it leaves out (None) from that default; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
     and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
@@ -257,7 +259,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     origins = _origins_f32(origins)
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
-    variant = resolve_variant(variant, backend)
+    variant = resolve_variant(variant, backend, rays=not lab)
     ds = device_scene(scene, backend)
     if n == 0:
         empty = np.zeros(0, np.float32)

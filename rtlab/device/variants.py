@@ -75,7 +75,7 @@ TRAVERSAL_SPECS = {s.name: s for s in (
     TraversalSpec("bvh-packet", "rt_bvh_packet.h", "traverse_bvh_packet", "cpu-bvh", "",
                   rays_per_item=PACKET_LANES, lanes=True, box_fma=True),
     TraversalSpec("bvh8", "rt_bvh8.h", "traverse_bvh8", "bvh8", ""),
-    TraversalSpec("bvh4", "rt_bvh4.h", "traverse_bvh4", "bvh4", ""),
+    TraversalSpec("bvh4", "rt_bvh4.h", "traverse_bvh4", "bvh4", "", fetch_rays=True),
     TraversalSpec("bvh-wide", "rt_bvh_wide.h", "traverse_bvh_wide", "cpu-bvh", "", lanes=True, box_fma=True),
 )}
 # Triangle tests (rt_intersect.h's intersect_ray_tri_<name>; the paper's Table 3 and Woop et al. 2013)
@@ -185,28 +185,31 @@ class Variant:
 PAPER_BLOCK = (32, 4)
 PAPER_VARIANT = Variant(traversal="stack", intersection="moller", block=PAPER_BLOCK)
 # The library's defaults (rtlab.device.tracing says why each): on a GPU the binary BVH with the
-# watertight test in 8x16 blocks; on a CPU bvh-packet with the watertight test; in a student tree,
-# where the lane form of the watertight test is a stub, the CPU takes the scalar test on the kd stack.
+# watertight test in 8x16 blocks, and for rays through trace() the 4-wide BVH in its place; on a CPU
+# bvh-packet with the watertight test; in a student tree, where the lane form of the watertight test
+# is a stub, the CPU takes the scalar test on the kd stack.
 GPU_DEFAULT_VARIANT = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
+GPU_RAYS_VARIANT = GPU_DEFAULT_VARIANT.with_(traversal="bvh4")
 CPU_DEFAULT_VARIANT = Variant(traversal="bvh-packet", intersection="watertight", block=PAPER_BLOCK)
 SCALAR_CPU_VARIANT = Variant(traversal="stack", intersection="watertight", block=PAPER_BLOCK)
 
 
-def default_variant(device) -> Variant:
-    """The variant the library runs when none is named, for ``device``: a Backend, or "gpu" / "cpu"."""
+def default_variant(device, rays: bool = False) -> Variant:
+    """The variant the library runs when none is named, for ``device``: a Backend, or "gpu" / "cpu".
+    ``rays``: for rays through trace() (GPU_RAYS_VARIANT on a GPU), not frames (render, Whitted)."""
     from ..paths import tree_has_stubs
     gpu = device == "gpu" if isinstance(device, str) else device.is_gpu()
     if gpu:
-        return GPU_DEFAULT_VARIANT
+        return GPU_RAYS_VARIANT if rays else GPU_DEFAULT_VARIANT
     return SCALAR_CPU_VARIANT if tree_has_stubs("shared/rt_intersect_lanes.h") else CPU_DEFAULT_VARIANT
 
 
-def resolve_variant(variant, device) -> Variant:
-    """The variant to run on ``device`` (a Backend, or "gpu" / "cpu"): default_variant(device) for None;
+def resolve_variant(variant, device, rays: bool = False) -> Variant:
+    """The variant to run on ``device`` (a Backend, or "gpu" / "cpu"): default_variant(device, rays) for None;
     a Variant with the parts it leaves out (None) taken from that default; for a string the default
     with the named parts replaced: a traversal ("bvh"), a triangle test ("moller"), or both as
     "traversal/test" ("stack/watertight"), so a name never silently changes the triangle test."""
-    default = default_variant(device)
+    default = default_variant(device, rays)
     if variant is None:
         return default
     if isinstance(variant, Variant):
@@ -273,7 +276,8 @@ def program_for(purpose: str, variant: Variant, lab: bool = False) -> str:
 
 def registry_rows() -> list[dict]:
     """The traversal table as rows (`rtlab variants`): sources in kernels/shared/; whose default it is."""
-    defaults = (("GPU", GPU_DEFAULT_VARIANT), ("CPU", CPU_DEFAULT_VARIANT), ("paper", PAPER_VARIANT))
+    defaults = (("GPU", GPU_DEFAULT_VARIANT), ("GPU rays", GPU_RAYS_VARIANT), ("CPU", CPU_DEFAULT_VARIANT),
+                ("paper", PAPER_VARIANT))
     return [{"traversal": s.name, "code": s.code, "source": s.header, "function": s.function, "reads": s.structure,
              "lab step": s.lab or "-", "default": ", ".join(d for d, v in defaults if v.traversal == s.name) or "-"}
             for s in TRAVERSAL_SPECS.values()]
