@@ -225,7 +225,8 @@ def test_trace_program_cap_reaches_nvcc():
     options = build_options(Variant(traversal="bvh4"), "cuda", "library_trace")
     assert nvcc_resources(src, wide, extra_options=options)["trace_rays_fetch"].registers <= 64
     assert build_options(Variant(traversal="bvh"), "cuda", "library_trace") == ()
-    assert build_options(Variant(traversal="bvh4", max_registers=48), "cuda", "library_trace") == ("-maxrregcount=48",)
+    named = Variant(traversal="bvh4", max_registers=48)       # a variant's own cap comes first
+    assert build_options(named, "cuda", "library_trace") == ("-maxrregcount=48",)
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")

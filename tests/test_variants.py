@@ -12,8 +12,9 @@ import rtlab
 from rtlab.backends.nvcc import nvcc_available, nvcc_resources
 from rtlab.device.kernels import SceneFeatures, TRACE_THREADS, build_defines, kernel_source, load_program
 from rtlab.device.variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, GPU_RAYS_VARIANT, ISECT_FUNCTIONS,
-                                   LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, SCALAR_CPU_VARIANT, TRAVERSAL_SPECS, TRAVERSALS,
-                                   Variant, default_variant, program_for, resolve_variant)
+                                   LAB_PROGRAMS, LIBRARY_PROGRAMS, PAPER_VARIANT, SCALAR_CPU_VARIANT,
+                                   TRAVERSAL_SPECS, TRAVERSALS, Variant, default_variant, program_for,
+                                   resolve_variant)
 from rtlab.errors import VariantError
 from rtlab.kernel_constants import kernel_constant
 from rtlab.paths import REFERENCE_KERNEL_DIR

@@ -127,7 +127,7 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
         stack[n].key = k1;
         *sp = n + 1;
     }
-    return rt_as_int(float4_component(load_node_data(node_data, row + 6), k0 & 3));
+    return rt_as_int(get4(load_node_data(node_data, row + 6), k0 & 3));
 }
 
 /* The most recent pending child that may still hold a hit as close as t_cut, t_cull of the closest hit

@@ -399,8 +399,7 @@ RT_FN void lanes_load_rows(__global const float4 *p, int first, int count, lanef
 #define lane_prefetch_rows(buf, row) ((void)0)
 #endif
 #ifndef lane_load_row_float
-#define lane_load_row_float(load, buf, row, k) rt_float4_get(load(buf, (row) + ((k) >> 2)), (k) & 3)
+#define lane_load_row_float(load, buf, row, k) get4(load(buf, (row) + ((k) >> 2)), (k) & 3)
 #endif
-RT_FN float rt_float4_get(float4 q, int c) { return c == 0 ? q.x : (c == 1 ? q.y : (c == 2 ? q.z : q.w)); }
 
 #endif /* RT_LANES_H */

@@ -136,16 +136,10 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
 #define load_tri_material(tri_materials, tri) (tri_materials)[(tri)]
 #endif
 
-/* Component k (0-3) of v by selects on k's bits (a run-time index into a register vector would go
- * through local memory, §3.1.1). Word i of node_data, four a float4 row (a child ref of rt_bvh4.h's
- * refs row, read alone): one 4-byte read from a buffer; from a texture, its row's component. */
-RT_FN float float4_component(float4 v, int k)
-{
-    float lo = (k & 1) ? v.y : v.x, hi = (k & 1) ? v.w : v.z;
-    return (k & 2) ? hi : lo;
-}
+/* Word i of node_data, four a float4 row (a child ref of rt_bvh4.h's refs row, read alone): one
+ * 4-byte read from a buffer; from a texture, its row's component. */
 #if RT_NODE_MEM == RT_MEM_TEXTURE
-#define load_node_word(node_data, i) rt_as_int(float4_component(load_node_data(node_data, (i) >> 2), (i) & 3))
+#define load_node_word(node_data, i) rt_as_int(get4(load_node_data(node_data, (i) >> 2), (i) & 3))
 #elif defined(__CUDACC__)
 #define load_node_word(node_data, i) __ldg((const int *)(node_data) + (i))
 #else

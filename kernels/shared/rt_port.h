@@ -318,6 +318,12 @@ RT_FN float get3(float3 a, int axis)
 #else
 RT_FN float get3(float3 a, int axis) { return axis == 0 ? a.x : (axis == 1 ? a.y : a.z); }
 #endif
+/* Component k (0-3) by selects on k's two bits (nested ?: over four became branches on the GPU) */
+RT_FN float get4(float4 a, int k)
+{
+    float lo = (k & 1) ? a.y : a.x, hi = (k & 1) ? a.w : a.z;
+    return (k & 2) ? hi : lo;
+}
 RT_FN int finite3(float3 a) { return rt_isfinite(a.x) && rt_isfinite(a.y) && rt_isfinite(a.z); }
 
 #endif /* RT_PORT_H */

@@ -143,9 +143,9 @@ def rays_per_work_item(variant: Variant) -> int:
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
 # refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
-# BVH: 64 as well, where its ray fetch (trace_rays_fetch) takes 66 uncapped (docs/results.md, "bvh4: a
-# cheaper visit"); only there, since ptxas reads a cap above a kernel's count as leave to use more
-# (the binary BVH's trace_ray_grid: 62 uncapped, 64 under it). Keys: a program, or (program, traversal).
+# BVH: 64 as well, past which its ray fetch (trace_rays_fetch) goes uncapped (docs/results.md, "trace()'s
+# GPU default"); only there, since ptxas reads a cap above a kernel's count as leave to use more (the
+# binary BVH's trace_ray_grid takes more under it). Keys: a program, or (program, traversal).
 LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64}
 
 

@@ -30,10 +30,10 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # vertices (Moller-Trumbore, the paper's test, Variant.paper(), lets some through). On a GPU
 # (GPU_DEFAULT_VARIANT) the BVH in 8x16 blocks: tile-shaped warps keep neighbouring rays together, and
 # the binary BVH is the fastest traversal of Whitted frames, whose shadow rays want their first leaf
-# soon. For rays through trace() (GPU_RAYS_VARIANT) the 4-wide BVH (rt_bvh4.h) in its place: half the
+# soon. For rays through trace() (GPU_RAYS_VARIANT) the 4-wide BVH (rt_bvh4.h) in its place: fewer
 # dependent node steps a ray, the fastest on the benchmark views' camera and diffuse rays. On a CPU
-# (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones (directions of one octant within about
-# 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
+# (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones
+# (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
 # (diffuse bounces, rays in no order) go one by one through the same tree, a node's 8 children tested
 # in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch that mixes both is traced each
 # part its way. Where the kernel sources in use has no lane form of the watertight test (a student release
@@ -237,8 +237,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     range is an error. ``tmin``, ``tmax``: numbers or one per ray; tmin finite and >= 0, tmax >= tmin
     (numpy.inf: no limit); None, NaN or a reversed interval is a RtlabError naming the ray.
     ``variant`` None: default_variant(backend, rays=True) (watertight; on a GPU the 4-wide BVH); a Variant
-    keeps what it names and takes what it leaves out (None) from that default; a string names a traversal ("bvh"), a test ("moller") or both ("bvh/moller")
-    and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
+    keeps what it names and takes what it leaves out (None) from that default; a string names a
+    traversal ("bvh"), a test ("moller") or both ("bvh/moller") and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
