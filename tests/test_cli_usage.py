@@ -36,7 +36,7 @@ CHEAP_FORMS = {
                           "--orders rows --out {tmp}/launch"),
     ("bench", "paper"): "bench paper --scenes default --sections table2 --size 32 --repeats 1 --out {tmp}/paper",
     ("bench", "cpu"): "bench cpu --views default --size 32 --rounds 1",
-    ("bench", "rays"): "bench rays --views bunny/far --kind primary,diffuse --sizes 32 --repeats 1 --traversals bvh",
+    ("bench", "rays"): "bench rays --views bunny/far --kind primary,diffuse --sizes 32 --repeats 1",
     ("inspect",): "inspect --depth 2 --size 32 --pixel 16 16 --screenshot {tmp}/inspect.png",
     ("lab", "list"): "lab list",
     ("lab", "template"): "lab template 03_traversal --out {tmp}/my-work",
@@ -182,3 +182,24 @@ def test_unwritable_output_is_one_line(tmp_path):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert code != 0 and "Traceback" not in out + err
     assert len(lines) == 1 and str(blocker) in lines[0] and "Mrays/s" not in out
+
+
+def test_bench_rays_times_what_trace_runs(workdir):
+    """`rtlab bench rays` with no variant named times trace()'s default on the device (the figure the
+    peers' ratio is quoted for); a named traversal or test replaces only that part of it."""
+    from rtlab.device.variants import default_variant
+    md = workdir / "rays.md"
+    code, out, err = run_cli(["bench", "rays", "--views", "bunny/far", "--kind", "primary", "--sizes", "16",
+                              "--repeats", "1", "--no-render", "--traversals", "default,bvh", "--isect", "moller",
+                              "--md", str(md)], workdir)
+    assert code == 0, err
+    def variants_named():
+        return [line.split("|")[5].strip() for line in md.read_text().splitlines() if line.startswith("| bunny/far")]
+    rows = variants_named()
+    default = default_variant("cpu", rays=True)
+    assert rows == [default.with_(intersection="moller").label(),
+                    default.with_(traversal="bvh", intersection="moller").label()], rows
+    code, out, err = run_cli(["bench", "rays", "--views", "bunny/far", "--kind", "primary", "--sizes", "16",
+                              "--repeats", "1", "--no-render", "--md", str(md)], workdir)
+    assert code == 0, err
+    assert variants_named()[-1] == default.label()

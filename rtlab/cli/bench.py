@@ -103,9 +103,11 @@ def bench_rays(ctx: typer.Context,
                backends: str = BACKENDS,
                device: Optional[str] = DEVICE,
                sizes: str = typer.Option("1024", help="image sides, comma-separated"),
-               traversals: str = typer.Option("bvh,stack", help="traversals to time, comma-separated"),
-               isect: str = typer.Option("moller"),
-               block: str = typer.Option("8x16", help="block of the image-shaped launches (primary rays)"),
+               traversals: str = typer.Option("default", help="traversals to time, comma-separated; 'default': "
+                                                              "the one trace() runs on the device"),
+               isect: Optional[str] = typer.Option(None, help="triangle test (default: trace()'s on the device)"),
+               block: Optional[str] = typer.Option(None, help="block of the image-shaped launches (primary rays; "
+                                                              "default: trace()'s on the device)"),
                repeats: int = typer.Option(22, help="timed launches; the median is reported"),
                render: bool = typer.Option(True, help="also time the render kernel on primary views"),
                md: Optional[Path] = MD):
@@ -114,7 +116,9 @@ def bench_rays(ctx: typer.Context,
     from ..benches.rays import bench_rays as bench, make_rays, rays_markdown, rays_tables, table_rows
     from ..device.kernels import Variant
     bes = backend_list(backends, device)
-    variants = [Variant(traversal=t, intersection=isect, block=block_shape(block)) for t in names(traversals)]
+    # parts left None are trace()'s default on each backend (bench resolves them)
+    variants = [Variant(traversal=None if t == "default" else t, intersection=isect,
+                        block=block_shape(block) if block else None) for t in names(traversals)]
     rows = []
     for size in int_list(sizes, "--sizes"):
         for view in names(views):
