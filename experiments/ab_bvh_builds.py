@@ -9,15 +9,22 @@ A configuration changes rtlab.accel.bvh.BvhBuildParams for both builds that trav
 between (plain and spatial splits, kept by the same SAH rule): ``mlN`` max_leaf_size N, ``ctX``
 cost_traversal X, ``ciX`` cost_intersect X, ``binsN``; parts joined by ``+`` (``ml4+ct0.5``); ``base``
 the builder's defaults. Each configuration gets its own DeviceScene, so the trees do not mix.
+
+With ``--family bvh4`` the configurations change the 4-wide tree's collapse instead
+(rtlab.accel.bvh4.Bvh4BuildParams, run with the "bvh4" traversal): ``cnX`` cost_node, ``cpX``
+cost_prim, ``lmN`` leaf_max, ``plain`` / ``split`` the binary tree it collapses (default: the cheaper).
 """
 from __future__ import annotations
 
 import dataclasses
 from unittest import mock
 
+import numpy as np
+
 from ab_trace_configs import ab_arguments, ab_batches, print_row   # experiments/ is on the path as a script
 from rtlab.accel import bvh_stats
 from rtlab.accel.bvh import BvhBuildParams, load_or_build_bvh
+from rtlab.accel.bvh4 import Bvh4BuildParams, load_or_build_bvh4
 from rtlab.backends import get_backend
 from rtlab.benches.rays import peer_figures
 from rtlab.device import device_scene as device_scene_module
@@ -42,6 +49,36 @@ def parse_params(text: str) -> dict:
         else:
             raise SystemExit(f"unknown configuration part {part!r}")
     return out
+
+
+def parse_bvh4_params(text: str) -> dict:
+    out = {}
+    for part in text.split("+"):
+        if part == "base":
+            continue
+        if part in ("plain", "split"):
+            out["binary"] = part
+            continue
+        for prefix, field, kind in (("cn", "cost_node", float), ("cp", "cost_prim", float), ("lm", "leaf_max", int)):
+            if part.startswith(prefix):
+                out[field] = kind(part[len(prefix):])
+                break
+        else:
+            raise SystemExit(f"unknown configuration part {part!r}")
+    return out
+
+
+def upload_bvh4(backend, scene, changes: dict):
+    params = dataclasses.replace(Bvh4BuildParams(), **changes)
+    b, _ = load_or_build_bvh4(scene.vertices, scene.faces, params)
+
+    def builder(scene_, tree_):
+        return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
+
+    ds = DeviceScene.upload(backend, scene, None)
+    with mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh4": builder}):
+        ds._accel("bvh4")
+    return ds, builder, f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}"
 
 
 def tree_for(scene, changes: dict):
@@ -71,17 +108,20 @@ def upload(backend, scene, changes: dict):
 
 def main(argv=None) -> None:
     ap = ab_arguments(__doc__.split("\n")[0], "base;ml4", 4)
-    ap.add_argument("--variant", default=None, help="a variant reading the \"bvh\" family (default: the backend's default)")
+    ap.add_argument("--variant", default=None, help="a variant reading the family's tree (default: the backend's "
+                                                     "default with the family's traversal)")
+    ap.add_argument("--family", default="bvh", choices=("bvh", "bvh4"), help="the tree the configurations change")
     a = ap.parse_args(argv)
     backend = get_backend(a.backend, a.device)
-    variant = tracing.resolve_variant(a.variant or None, backend)
-    configs = [(c, parse_params(c)) for c in a.configs.split(";")]
+    variant = tracing.resolve_variant(a.variant or a.family, backend, rays=True)
+    parse, build = (parse_params, upload) if a.family == "bvh" else (parse_bvh4_params, upload_bvh4)
+    configs = [(c, parse(c)) for c in a.configs.split(";")]
     peers = peer_figures()
     scenes = {}
     for batch in ab_batches(a, backend, f"variant {variant.label()}", [c for c, _ in configs]):
         key = batch.view.split("/")[0]
         if key not in scenes:
-            scenes[key] = {c: upload(backend, batch.scene, ch) for c, ch in configs}
+            scenes[key] = {c: build(backend, batch.scene, ch) for c, ch in configs}
             for c, (_, _, info) in scenes[key].items():
                 print(f"<!-- {key} {c}: {info} -->", flush=True)
         width = batch.size if batch.kind == "primary" else None
@@ -91,7 +131,7 @@ def main(argv=None) -> None:
             for c, _ in configs:
                 ds, builder, _ = scenes[key][c]
                 with mock.patch.object(tracing, "device_scene", lambda *_args, **_kw: ds), \
-                        mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
+                        mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {a.family: builder}):
                     r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
                               repeats=a.repeats, warmup=1, width=width)
                 best[c].append(min(r.launches_ms))
