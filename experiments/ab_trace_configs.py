@@ -10,7 +10,8 @@ registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared me
 driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
-direction's quantised spherical angles: what ordering could gain, the sort itself not timed),
+direction's quantised spherical angles; ``tileWxH``, camera rays tile by tile, so trace() takes them
+as a list (trace_rays_fetch) in tiles: what ordering could gain, the sort itself not timed),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
@@ -43,7 +44,7 @@ def parse_config(text: str, base):
             variant = variant.with_(block=(int(w), int(h)))
         elif p == "nofetch":
             defines["nofetch"] = 1
-        elif p in ("sortoct", "sortmorton", "sortdir"):
+        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith("sorttile"):
             defines["sort"] = p[4:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
@@ -82,9 +83,22 @@ def morton3(q: np.ndarray) -> np.ndarray:
     return spread(q[:, 0]) << 2 | spread(q[:, 1]) << 1 | spread(q[:, 2])
 
 
+def tile_order(width: int, height: int, tw: int, th: int) -> np.ndarray:
+    """The pixels of a width x height image, row-major, permuted tile by tile: tiles of tw x th in
+    row-major order, each tile's pixels row-major (32 consecutive rays an 8x4 tile: a warp's)."""
+    y, x = np.divmod(np.arange(width * height), width)
+    tiles_x = -(-width // tw)
+    key = ((y // th) * tiles_x + x // tw) * (tw * th) + (y % th) * tw + x % tw
+    return np.argsort(key, kind="stable")
+
+
 def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """A permutation of the rays: stable by direction octant, then (morton) the origin's Morton code or
-    (dir) the direction's quantised angles."""
+    (dir) the direction's quantised angles; ``tileWxH``: camera rays (a square image) tile by tile."""
+    if kind.startswith("tile"):
+        side = int(round(len(origins) ** 0.5))
+        tw, th = (int(v) for v in kind[4:].split("x"))
+        return tile_order(side, side, tw, th)
     d = np.asarray(directions, np.float64)
     octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
     if kind == "oct":
