@@ -8,8 +8,10 @@
 #     stall reason) and the L1 and L2 hit rates;
 #   lanes: threads active per executed warp instruction (of 32), instructions, SM cycles, warps active:
 #     whether divergence or instruction count bounds a kernel. CASES and DEFINES (-D NAME=V for the
-#     trace cases) and NO_WHITTED=1 narrow it.
-# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls|lanes]
+#     trace cases) and NO_WHITTED=1 narrow it;
+#   frames: the limit sections for the frames' kernels: render_primary and render_shadows (the frames'
+#     GPU default, SCENES, 1024²) and the Whitted frame's.
+# Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls|lanes|frames]
 set -u
 PART=${1:-limit}
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
@@ -26,9 +28,22 @@ PY
 case "$PART" in
 limit)
   SECTIONS="--section SpeedOfLight --section ComputeWorkloadAnalysis --section Occupancy --section LaunchStats"
-  KEYS="Duration|Compute \(SM\) Throughput|Memory Throughput|DRAM Throughput|L1/TEX Cache Throughput|L2 Cache Throughput|Issue Slots Busy|Issued Ipc Active|Executed Ipc Active|Achieved Occupancy|Theoretical Occupancy|Registers Per Thread|Block Size"
+  KEYS="Duration|Elapsed Cycles|SM Active Cycles|Compute \(SM\) Throughput|Memory Throughput|DRAM Throughput|L1/TEX Cache Throughput|L2 Cache Throughput|Issue Slots Busy|Issued Ipc Active|Executed Ipc Active|Achieved Occupancy|Theoretical Occupancy|Registers Per Thread|Block Size"
   DEFAULT_CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:primary conference/inside:diffuse"
   WHITTED_SKIP=10; WHITTED_KERNELS=. ;;
+frames)
+  SECTIONS="--section SpeedOfLight --section ComputeWorkloadAnalysis --section Occupancy --section LaunchStats"
+  KEYS="Duration|Elapsed Cycles|SM Active Cycles|DRAM Throughput|L1/TEX Cache Throughput|L2 Cache Throughput|Issued Ipc Active|Achieved Occupancy|Theoretical Occupancy|Registers Per Thread|Block Size"
+  SCENES=${SCENES:-sponza conference kitchen}; [ "$SCENES" = none ] && SCENES=
+  for scene in $SCENES; do
+    for shading in "" "--shadows one-pass"; do
+      tag="frames_${scene}${shading:+_shadows}"
+      timeout 240 ncu --kernel-name regex:render_ --launch-skip 1 --launch-count 1 $SECTIONS \
+          python -m rtlab render $scene --backend cuda --size 1024 $shading --repeats 3 --out /tmp/f.png > "$OUT/$tag.txt" 2>&1
+      echo "== $scene ${shading:-primary}"; grep -E "^  [a-z_]+ \(|^ *($KEYS) " "$OUT/$tag.txt" | sed 's/  */ /g'
+    done
+  done
+  CASES=none; WHITTED_SKIP=8; WHITTED_KERNELS=trace_wavefront ;;   # a frame's 4 trace launches (rt_spin between)
 stalls)
   SECTIONS="--section WarpStateStats --section MemoryWorkloadAnalysis --section SpeedOfLight --page raw"
   KEYS="gpu__time_duration.sum|smsp__average_warp_latency_per_inst_issued.ratio|smsp__average_warps_issue_stalled_[a-z_]+_per_issue_active.ratio|l1tex__t_sector_hit_rate.pct|lts__t_sector_hit_rate.pct|smsp__thread_inst_executed_per_inst_executed.ratio"
@@ -39,9 +54,10 @@ lanes)
   KEYS="smsp__[a-z_.]+|sm__[a-z_.]+|gpu__[a-z_.]+"
   DEFAULT_CASES="sponza/inside:primary sponza/inside:diffuse conference/inside:diffuse dragon/fill:diffuse"
   WHITTED_SKIP=10; WHITTED_KERNELS=. ;;
-*) echo "unknown part $PART: limit, stalls or lanes" >&2; exit 2 ;;
+*) echo "unknown part $PART: limit, stalls, lanes or frames" >&2; exit 2 ;;
 esac
 CASES=${CASES:-$DEFAULT_CASES}
+[ "$CASES" = none ] && CASES=
 for c in $CASES; do
   tag=$(echo "$c" | tr '/:' '__')
   timeout 240 ncu --kernel-name regex:trace_ray --launch-skip 1 --launch-count 1 $SECTIONS \
