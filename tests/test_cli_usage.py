@@ -184,6 +184,11 @@ def test_unwritable_output_is_one_line(tmp_path):
     assert len(lines) == 1 and str(blocker) in lines[0] and "Mrays/s" not in out
 
 
+def _variant_column(md) -> list[str]:
+    """The variant cells of the bunny/far rows a `bench rays --md` file holds, in order."""
+    return [line.split("|")[5].strip() for line in md.read_text().splitlines() if line.startswith("| bunny/far")]
+
+
 def test_bench_rays_times_what_trace_runs(workdir):
     """`rtlab bench rays` with no variant named times trace()'s default on the device (the figure the
     peers' ratio is quoted for); a named traversal or test replaces only that part of it."""
@@ -193,13 +198,11 @@ def test_bench_rays_times_what_trace_runs(workdir):
                               "--repeats", "1", "--no-render", "--traversals", "default,bvh", "--isect", "moller",
                               "--md", str(md)], workdir)
     assert code == 0, err
-    def variants_named():
-        return [line.split("|")[5].strip() for line in md.read_text().splitlines() if line.startswith("| bunny/far")]
-    rows = variants_named()
+    rows = _variant_column(md)
     default = default_variant("cpu", rays=True)
     assert rows == [default.with_(intersection="moller").label(),
                     default.with_(traversal="bvh", intersection="moller").label()], rows
     code, out, err = run_cli(["bench", "rays", "--views", "bunny/far", "--kind", "primary", "--sizes", "16",
                               "--repeats", "1", "--no-render", "--md", str(md)], workdir)
     assert code == 0, err
-    assert variants_named()[-1] == default.label()
+    assert _variant_column(md)[-1] == default.label()
