@@ -19,8 +19,6 @@ from __future__ import annotations
 import dataclasses
 from unittest import mock
 
-import numpy as np
-
 from ab_trace_configs import ab_arguments, ab_batches, print_row   # experiments/ is on the path as a script
 from rtlab.accel import bvh_stats
 from rtlab.accel.bvh import BvhBuildParams, load_or_build_bvh
@@ -29,56 +27,33 @@ from rtlab.backends import get_backend
 from rtlab.benches.rays import peer_figures
 from rtlab.device import device_scene as device_scene_module
 from rtlab.device import tracing
-from rtlab.device.device_scene import AccelArrays, DeviceScene, NO_NODES
+from rtlab.device.device_scene import DeviceScene
 from rtlab.device.tracing import trace
 
 
-def parse_params(text: str) -> dict:
+# Configuration parts: prefix -> (field, type), and whole words -> (field, value)
+BVH_PREFIXES = {"ml": ("max_leaf_size", int), "ct": ("cost_traversal", float), "ci": ("cost_intersect", float),
+                "bins": ("bins", int), "gain": ("gain", float)}       # gain: the SAH gain that keeps the split tree
+BVH4_PREFIXES = {"cn": ("cost_node", float), "cp": ("cost_prim", float), "lm": ("leaf_max", int)}
+BVH4_WORDS = {"plain": ("binary", "plain"), "split": ("binary", "split")}
+
+
+def parse_params(text: str, prefixes: dict = BVH_PREFIXES, words: dict | None = None) -> dict:
+    """A configuration's parts joined by "+" ("base": none) -> the build parameters they change."""
     out = {}
     for part in text.split("+"):
         if part == "base":
             continue
-        if part.startswith("gain"):          # the SAH gain that keeps the spatial-split tree
-            out["gain"] = float(part[4:])
+        if words and part in words:
+            field, value = words[part]
+            out[field] = value
             continue
-        for prefix, field, kind in (("ml", "max_leaf_size", int), ("ct", "cost_traversal", float),
-                                    ("ci", "cost_intersect", float), ("bins", "bins", int)):
-            if part.startswith(prefix):
-                out[field] = kind(part[len(prefix):])
-                break
-        else:
+        prefix = next((p for p in prefixes if part.startswith(p)), None)
+        if prefix is None:
             raise SystemExit(f"unknown configuration part {part!r}")
+        field, kind = prefixes[prefix]
+        out[field] = kind(part[len(prefix):])
     return out
-
-
-def parse_bvh4_params(text: str) -> dict:
-    out = {}
-    for part in text.split("+"):
-        if part == "base":
-            continue
-        if part in ("plain", "split"):
-            out["binary"] = part
-            continue
-        for prefix, field, kind in (("cn", "cost_node", float), ("cp", "cost_prim", float), ("lm", "leaf_max", int)):
-            if part.startswith(prefix):
-                out[field] = kind(part[len(prefix):])
-                break
-        else:
-            raise SystemExit(f"unknown configuration part {part!r}")
-    return out
-
-
-def upload_bvh4(backend, scene, changes: dict):
-    params = dataclasses.replace(Bvh4BuildParams(), **changes)
-    b, _ = load_or_build_bvh4(scene.vertices, scene.faces, params)
-
-    def builder(scene_, tree_):
-        return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
-
-    ds = DeviceScene.upload(backend, scene, None)
-    with mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh4": builder}):
-        ds._accel("bvh4")
-    return ds, builder, f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}"
 
 
 def tree_for(scene, changes: dict):
@@ -92,17 +67,34 @@ def tree_for(scene, changes: dict):
     return pick, f"plain SAH {bvh_stats.sah_cost(a):.2f}, split SAH {bvh_stats.sah_cost(b):.2f}"
 
 
-def upload(backend, scene, changes: dict):
+def bvh_build(scene, changes: dict):
+    """(upload arrays, description) of the binary tree under ``changes``."""
     bvh, both = tree_for(scene, changes)
-
-    def builder(scene_, tree_):
-        return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
-
-    ds = DeviceScene.upload(backend, scene, None)
-    with mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {"bvh": builder}):
-        ds._accel("bvh")                 # the tree uploaded now, under this configuration's builder
     info = (f"{'split' if bvh.params.spatial else 'plain'}, SAH {bvh_stats.sah_cost(bvh):.1f}, "
             f"{bvh.n_nodes:,} nodes, {len(bvh.objects):,} refs ({both})")
+    return device_scene_module.bvh_arrays(bvh), info
+
+
+def bvh4_build(scene, changes: dict):
+    """(upload arrays, description) of the 4-wide tree collapsed under ``changes``."""
+    b, _ = load_or_build_bvh4(scene.vertices, scene.faces, dataclasses.replace(Bvh4BuildParams(), **changes))
+    return (device_scene_module.bvh4_arrays(b),
+            f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}")
+
+
+FAMILIES = {"bvh": (BVH_PREFIXES, None, bvh_build), "bvh4": (BVH4_PREFIXES, BVH4_WORDS, bvh4_build)}
+
+
+def upload(backend, scene, family: str, changes: dict):
+    """A DeviceScene of its own holding ``family``'s tree built under ``changes``; (scene, builder, info)."""
+    arrays, info = FAMILIES[family][2](scene, changes)
+
+    def builder(scene_, tree_):
+        return arrays
+
+    ds = DeviceScene.upload(backend, scene, None)
+    with mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {family: builder}):
+        ds._accel(family)                # the tree uploaded now, under this configuration's builder
     return ds, builder, info
 
 
@@ -114,14 +106,14 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
     backend = get_backend(a.backend, a.device)
     variant = tracing.resolve_variant(a.variant or a.family, backend, rays=True)
-    parse, build = (parse_params, upload) if a.family == "bvh" else (parse_bvh4_params, upload_bvh4)
-    configs = [(c, parse(c)) for c in a.configs.split(";")]
+    prefixes, words, _ = FAMILIES[a.family]
+    configs = [(c, parse_params(c, prefixes, words)) for c in a.configs.split(";")]
     peers = peer_figures()
     scenes = {}
     for batch in ab_batches(a, backend, f"variant {variant.label()}", [c for c, _ in configs]):
         key = batch.view.split("/")[0]
         if key not in scenes:
-            scenes[key] = {c: build(backend, batch.scene, ch) for c, ch in configs}
+            scenes[key] = {c: upload(backend, batch.scene, a.family, ch) for c, ch in configs}
             for c, (_, _, info) in scenes[key].items():
                 print(f"<!-- {key} {c}: {info} -->", flush=True)
         width = batch.size if batch.kind == "primary" else None
@@ -137,6 +129,7 @@ def main(argv=None) -> None:
                 best[c].append(min(r.launches_ms))
                 last[c] = r
         print_row(batch, best, last, peers.get((batch.view, batch.kind, a.size), {}).get("best"))
+
 
 if __name__ == "__main__":
     main()

@@ -277,8 +277,10 @@ RT_FN void bvh_trace_steps(RT_SCENE_PARAMS, BvhTrace *s, int *stack)
             float4 z = load_node_data(node_data, base + 2);
             float4 c = load_node_data(node_data, base + 3);
             float e0, e1;
-            int hit0 = hit_bvh_child_cut(&s->ray, &s->fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f), t_cut, &e0);
-            int hit1 = hit_bvh_child_cut(&s->ray, &s->fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f), t_cut, &e1);
+            int hit0 = hit_bvh_child_cut(&s->ray, &s->fused, f4(a.x, a.z, z.x, 0.0f), f4(a.y, a.w, z.y, 0.0f),
+                                         t_cut, &e0);
+            int hit1 = hit_bvh_child_cut(&s->ray, &s->fused, f4(b.x, b.z, z.z, 0.0f), f4(b.y, b.w, z.w, 0.0f),
+                                         t_cut, &e1);
             int c0 = rt_as_int(c.x), c1 = rt_as_int(c.y);
             if (hit0 && hit1) {
                 int near0 = e0 <= e1;

@@ -33,10 +33,10 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # soon. For rays through trace() (GPU_RAYS_VARIANT) the 4-wide BVH (rt_bvh4.h) in its place: fewer
 # dependent node steps a ray, the fastest on the benchmark views' camera and diffuse rays. On a CPU
 # (PoCL, CPU_DEFAULT_VARIANT) "bvh-packet", which picks per packet of 8 consecutive rays: coherent ones
-# (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH together in SIMD lanes, the others
-# (diffuse bounces, rays in no order) go one by one through the same tree, a node's 8 children tested
-# in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a batch that mixes both is traced each
-# part its way. Where the kernel sources in use has no lane form of the watertight test (a student release
+# (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH
+# together in SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same
+# tree, a node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a
+# batch that mixes both is traced each part its way. Where the kernel sources in use has no lane form of the watertight test (a student release
 # stubs it: it would show lab 02's solution), the CPU default is the scalar test on the kd stack
 # (SCALAR_CPU_VARIANT). The lab steps and the paper's benches name their variants and keep the paper's.
 # The figures behind these choices: docs/results.md (GPU trace() against the peers, the CPU against
@@ -238,7 +238,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     (numpy.inf: no limit); None, NaN or a reversed interval is a RtlabError naming the ray.
     ``variant`` None: default_variant(backend, rays=True) (watertight; on a GPU the 4-wide BVH); a Variant
     keeps what it names and takes what it leaves out (None) from that default; a string names a
-    traversal ("bvh"), a test ("moller") or both ("bvh/moller") and takes the rest from the default. ``backend`` is a Backend or a name ("opencl", "cuda").
+    traversal ("bvh"), a test ("moller") or both ("bvh/moller") and takes the rest from the default.
+    ``backend`` is a Backend or a name ("opencl", "cuda").
     ``defines`` adds or overrides -D switches (e.g. RT_CONSERVATIVE); ``min_stack_size`` compiles a
     stack at least that deep, so one program serves scenes of different depths. ``repeats`` times that
     many launches on the same rays after ``warmup`` untimed ones (benchmarks); ``kernel_ms`` is their
