@@ -72,13 +72,13 @@ def bvh_build(scene, changes: dict):
     bvh, both = tree_for(scene, changes)
     info = (f"{'split' if bvh.params.spatial else 'plain'}, SAH {bvh_stats.sah_cost(bvh):.1f}, "
             f"{bvh.n_nodes:,} nodes, {len(bvh.objects):,} refs ({both})")
-    return device_scene_module.bvh_arrays(bvh), info
+    return device_scene_module.bvh_accel(scene, None, bvh), info
 
 
 def bvh4_build(scene, changes: dict):
     """(upload arrays, description) of the 4-wide tree collapsed under ``changes``."""
     b, _ = load_or_build_bvh4(scene.vertices, scene.faces, dataclasses.replace(Bvh4BuildParams(), **changes))
-    return (device_scene_module.bvh4_arrays(b),
+    return (device_scene_module.bvh4_accel(scene, None, b),
             f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}")
 
 

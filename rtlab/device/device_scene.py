@@ -57,15 +57,11 @@ def ropes_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(r.nodes, records, tree.objects, tree.bounds, tree.depth + 1)
 
 
-def bvh_arrays(bvh) -> AccelArrays:
-    """A binary BVH's upload in Aila & Laine's layout (rt_bvh.h)."""
-    return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
-
-
-def bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
+def bvh_accel(scene: Scene, tree: KdTree, bvh=None) -> AccelArrays:
     """The scene's BVH in Aila & Laine's layout (rt_bvh.h), with spatial splits where they lower its
-    SAH cost (rtlab.accel.bvh_stats.traversal_bvh); the kd-tree is not used."""
-    return bvh_arrays(traversal_bvh(scene.vertices, scene.faces))
+    SAH cost (rtlab.accel.bvh_stats.traversal_bvh); the kd-tree is not used. ``bvh``: this tree instead."""
+    bvh = traversal_bvh(scene.vertices, scene.faces) if bvh is None else bvh
+    return AccelArrays(NO_NODES, bvh.node_data(), bvh.objects, bvh.bounds, bvh.depth + 1)
 
 
 def cpu_bvh_accel(scene: Scene, tree: KdTree) -> AccelArrays:
@@ -83,15 +79,11 @@ def bvh8_accel(scene: Scene, tree: KdTree) -> AccelArrays:
     return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, b.depth + 1)
 
 
-def bvh4_arrays(b) -> AccelArrays:
-    """A 4-wide BVH's upload (rt_bvh4.h): nodes and leaf-ordered triangles in node_data; a node pushes
-    at most 3 children, so the stack holds 3 x depth + 1."""
+def bvh4_accel(scene: Scene, tree: KdTree, b=None) -> AccelArrays:
+    """The scene's 4-wide BVH (rt_bvh4.h): nodes and leaf-ordered triangles in node_data; a node pushes
+    at most 3 children, so the stack holds 3 x depth + 1. ``b``: this tree instead."""
+    b = load_or_build_bvh4(scene.vertices, scene.faces)[0] if b is None else b
     return AccelArrays(NO_NODES, b.rows, np.zeros(1, np.int32), b.bounds, 3 * b.depth + 1)
-
-
-def bvh4_accel(scene: Scene, tree: KdTree) -> AccelArrays:
-    """The scene's 4-wide BVH (bvh4_arrays); the kd-tree is not used."""
-    return bvh4_arrays(load_or_build_bvh4(scene.vertices, scene.faces)[0])
 
 
 # family -> builder(scene, kd_tree) -> AccelArrays; a traversal's family is the structure the variant
