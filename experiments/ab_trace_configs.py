@@ -12,7 +12,7 @@ driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no 
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
 direction's quantised spherical angles; ``tileWxH``, camera rays tile by tile, so trace() takes them
 as a list (trace_rays_fetch) in tiles; ``heavyP``, 8x4 tiles with the costliest P % first (heavy_first):
-what ordering could gain, the sort itself not timed),
+what ordering could gain, the sort itself not timed; ``probeP``, the same ranked by one probe ray a tile),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
@@ -45,7 +45,7 @@ def parse_config(text: str, base):
             variant = variant.with_(block=(int(w), int(h)))
         elif p == "nofetch":
             defines["nofetch"] = 1
-        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy")):
+        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy", "sortprobe")):
             defines["sort"] = p[4:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
@@ -96,10 +96,11 @@ def tile_order(width: int, height: int, tw: int, th: int) -> np.ndarray:
 HEAVY_SCENE = {}     # the batch's scene, set by main for heavy_first
 
 
-def heavy_first(percent: float, origins, directions) -> np.ndarray:
+def heavy_first(percent: float, origins, directions, probe: bool = False) -> np.ndarray:
     """Camera rays in 8x4 tiles (tile_order), the costliest ``percent`` % of the tiles first (costliest
     first), the rest in row order: an oracle of what starting the slow tiles first could gain. A tile's
-    cost: its costliest ray's node visits x 121 + triangle tests x 75 (the 4-wide walk on the host)."""
+    cost: its costliest ray's node visits x 121 + triangle tests x 75 (the 4-wide walk on the host);
+    with ``probe`` the cost of one ray of it (row 2, column 4), as a probe launch would see it."""
     from rtlab.accel.bvh4 import load_or_build_bvh4
     from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
     scene = HEAVY_SCENE["scene"]
@@ -107,7 +108,8 @@ def heavy_first(percent: float, origins, directions) -> np.ndarray:
     order = tile_order(side, side, 8, 4)
     b, _ = load_or_build_bvh4(scene.vertices, scene.faces)
     nodes, _, tris = traversal_counts_bvh4(b, scene.vertices, scene.faces, origins, directions)[:3]
-    tile_cost = (np.asarray(nodes) * 121 + np.asarray(tris) * 75)[order].reshape(-1, 32).max(axis=1)
+    ray_cost = (np.asarray(nodes) * 121 + np.asarray(tris) * 75)[order].reshape(-1, 32)
+    tile_cost = ray_cost[:, 20] if probe else ray_cost.max(axis=1)   # probe: one ray, row 2 column 4
     k = int(round(len(tile_cost) * percent / 100))
     heavy = np.argsort(-tile_cost, kind="stable")[:k]
     rest = np.setdiff1d(np.arange(len(tile_cost)), heavy)       # ascending: row order
@@ -124,6 +126,8 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
         return tile_order(side, side, tw, th)
     if kind.startswith("heavy"):
         return heavy_first(float(kind[5:]), origins, directions)
+    if kind.startswith("probe"):
+        return heavy_first(float(kind[5:]), origins, directions, probe=True)
     d = np.asarray(directions, np.float64)
     octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
     if kind == "oct":
