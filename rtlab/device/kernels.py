@@ -143,21 +143,23 @@ def rays_per_work_item(variant: Variant) -> int:
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
 # refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
-# BVH: 64 as well, past which its ray fetch (trace_rays_fetch) goes uncapped (docs/results.md, "trace()'s
-# GPU default"); only there, since ptxas reads a cap above a kernel's count as leave to use more (the
-# binary BVH's trace_ray_grid takes more under it). Keys: a program, or (program, traversal).
-LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64}
+# BVH: 72 on CUDA, where ptxas then schedules the grid kernel in 64 registers and gives the ray fetch
+# 70 (1-3 % faster than a cap of 64), and 64 on NVIDIA's OpenCL, which loses up to 3 % at 72
+# (docs/results.md, "trace()'s register cap"); only there, since ptxas reads a cap above a kernel's
+# count as leave to use more (the binary BVH's trace_ray_grid takes more under it). Keys: a program,
+# (program, traversal), or (program, traversal, language), the most specific first.
+LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64, ("library_trace", "bvh4", "cuda"): 72}
 
 
 def build_options(variant: Variant, backend, program: str | None = None) -> tuple[str, ...]:
     """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study, or where the
     variant names none, ``program``'s LIBRARY_REGISTER_CAPS. ``backend`` is a Backend or a language
     name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
-    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal))
-            or LIBRARY_REGISTER_CAPS.get(program, 0))
+    language = backend if isinstance(backend, str) else backend.language
+    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal, language))
+            or LIBRARY_REGISTER_CAPS.get((program, variant.traversal)) or LIBRARY_REGISTER_CAPS.get(program, 0))
     if not n:
         return ()
-    language = backend if isinstance(backend, str) else backend.language
     if language == "cuda":
         return (f"-maxrregcount={n}",)
     if not isinstance(backend, str) and getattr(backend, "is_nvidia", lambda: False)():
