@@ -143,11 +143,11 @@ def rays_per_work_item(variant: Variant) -> int:
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
 # refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
-# BVH: 72 on CUDA, where ptxas then schedules the grid kernel in 64 registers and gives the ray fetch
-# 70 (1-3 % faster than a cap of 64), and 64 on NVIDIA's OpenCL, which loses up to 3 % at 72
-# (docs/results.md, "trace()'s register cap"); only there, since ptxas reads a cap above a kernel's
-# count as leave to use more (the binary BVH's trace_ray_grid takes more under it). Keys: a program,
-# (program, traversal), or (program, traversal, language), the most specific first.
+# BVH: 72 on CUDA, under which ptxas schedules its kernels faster than under 64, and 64 on NVIDIA's
+# OpenCL, which runs slower at 72 (docs/results.md, "trace()'s register cap"); only there, since ptxas
+# reads a cap above a kernel's count as leave to use more (the binary BVH's trace_ray_grid takes more
+# under it). Keys: a program, (program, traversal), or (program, traversal, language), the most
+# specific first.
 LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64, ("library_trace", "bvh4", "cuda"): 72}
 
 

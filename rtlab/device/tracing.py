@@ -36,9 +36,10 @@ DIRECTION_RANGE = (2.0 ** -16, 2.0 ** 16)
 # (directions of one octant within about 25 degrees: camera rays, rows of an image) walk the wide BVH
 # together in SIMD lanes, the others (diffuse bounces, rays in no order) go one by one through the same
 # tree, a node's 8 children tested in SIMD lanes (rt_bvh_packet.h, rt_bvh_wide.h); per packet, so a
-# batch that mixes both is traced each part its way. Where the kernel sources in use has no lane form of the watertight test (a student release
-# stubs it: it would show lab 02's solution), the CPU default is the scalar test on the kd stack
-# (SCALAR_CPU_VARIANT). The lab steps and the paper's benches name their variants and keep the paper's.
+# batch that mixes both is traced each part its way. Where the kernel sources in use have no lane form
+# of the watertight test (a student release stubs it: it would show lab 02's solution), the CPU
+# default is the scalar test on the kd stack (SCALAR_CPU_VARIANT). The lab steps and the paper's
+# benches name their variants and keep the paper's.
 # The figures behind these choices: docs/results.md (GPU trace() against the peers, the CPU against
 # Embree; `rtlab bench rays`, `rtlab bench cpu`).
 DEFAULT_VARIANT = CPU_DEFAULT_VARIANT
