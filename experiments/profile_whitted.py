@@ -7,7 +7,8 @@ list of render configurations, median of several frames.
 A configuration is ``traversal[:option...]`` with options ``compact``, ``noshadows``, ``twopass``,
 ``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level),
 ``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position),
-``RT_NAME=V`` (any -D).
+``RT_NAME=V`` (any -D), ``lbN`` (light buffers of at most N cells a face edge; ``RT_LIGHT_BUFFER=0``
+turns them off).
 """
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ from collections import defaultdict
 
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
+from rtlab.accel import light_buffer
+from rtlab.accel.light_buffer import RESOLUTIONS
 from rtlab.device.whitted import render_whitted
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
@@ -43,6 +46,8 @@ def parse_config(text: str):
             kw["intersection"] = p[6:]
         elif p.startswith("fma"):
             opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
+        elif p.startswith("lb"):
+            opts["light_buffer_res"] = int(p[2:])
         elif "=" in p and p.startswith("RT_"):
             name, value = p.split("=")
             opts["defines"][name] = int(value)
@@ -77,12 +82,17 @@ def main():
           f"({backend.device_name}), median of {args.repeats} frames")
     for text in args.configs.split(","):
         variant, opts = parse_config(text)
+        light_buffer.RESOLUTIONS = tuple(r for r in RESOLUTIONS if r <= opts.get("light_buffer_res", RESOLUTIONS[0]))
         r = render_whitted(scene, backend, variant, shadows=opts["shadows"], bounces=args.bounces,
                            compact=opts["compact"], schedule=opts["schedule"], repeats=args.repeats, warmup=2,
                            defines=opts["defines"])
         regs = "/".join(str(v.get("registers")) for v in r.resources.values())
         print(f"{text:40s} {r.median_ms:7.3f} ms {r.fps:8.1f} fps  rays {r.rays_launched():>10,}  "
               f"launches {len(r.launches):2d}  regs {regs}  host {r.host_ms:.2f} ms")
+        if r.light_buffer:
+            blocks = "; ".join(f"{b['resolution']}² a face, {b['mib']:.1f} MiB, {b['mean_list']:.1f} a list, "
+                               f"{b['cells_to_traversal']:,} cells to the traversal" for b in r.light_buffer["lights"])
+            print(f"    light buffers: {blocks} (built in {r.light_buffer['build_s']:.1f} s)")
         by_level = defaultdict(lambda: [0, 0.0])
         for launch in r.launches:
             by_level[launch.level if launch.kernel != "pack_frame" else "pack"][0] += launch.rays

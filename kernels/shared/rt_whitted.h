@@ -106,6 +106,13 @@ RT_FN int light_visible(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Su
     /* END SOLUTION */
 }
 
+#ifndef RT_LIGHT_BUFFER            /* 1: shadow rays through each light's light buffer (rt_light_buffer.h) */
+#define RT_LIGHT_BUFFER 0
+#endif
+#if RT_LIGHT_BUFFER
+#include "rt_light_buffer.h"
+#endif
+
 /* Which lights reach surface s: bit i set when light i lies on the front side (ng.l > 0 and
  * ns.l > 0) and, with RT_SHADOWS, its shadow ray is free. Traced before any shading so that little
  * is live across the traversal (registers decide occupancy: the paper's Table 5). At most 32 lights
@@ -119,7 +126,10 @@ RT_FN unsigned int lights_reaching(RT_SCENE_PARAMS, RT_CONST const RtFrame *fram
         float3 to_light = sub3(xyz(lights[i].position), s->p);
         if (dot3(s->ns, to_light) <= 0.0f || dot3(s->ng, to_light) <= 0.0f)
             continue;
-#if RT_SHADOWS
+#if RT_SHADOWS && RT_LIGHT_BUFFER
+        if (!light_visible_buffered(RT_SCENE_ARGS, frame, s, lights[i].position))
+            continue;
+#elif RT_SHADOWS
         if (!light_visible(RT_SCENE_ARGS, frame, s, xyz(lights[i].position)))
             continue;
 #endif

@@ -87,6 +87,9 @@ def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, ma
                   f"{', compacted' if result.compact else ''}): "
                   f"{result.median_ms:.2f} ms a frame ({result.fps:,.1f} fps), {len(result.launches)} launches, "
                   f"{result.rays_launched():,} rays; {kernels}")
+    for block in (result.light_buffer or {}).get("lights", []):
+        console.print(f"shadow rays through a light buffer: {block['resolution']}² cells a face, {block['mib']:.1f} MiB, "
+                      f"built in {result.light_buffer['build_s']:.1f} s")
     if bounces > 0 and result.depth == 0:
         console.print(f"no material of {scene.name} reflects or transmits with materials {materials!r}, so no "
                       "secondary rays were traced; the paper's Fig. 6 materials: --materials paper")

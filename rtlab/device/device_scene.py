@@ -257,6 +257,7 @@ class DeviceScene:
                                                     # (the AccelArrays it was made from, DeviceArray)
     max_material_id: int = 0                        # checked against the scene's materials each use
     work: tuple | None = None                       # (buffer, work-items) of a counting build's counters
+    light_buffers: dict = field(default_factory=dict)  # (family, light positions) -> rtlab.device.light_buffers
     fingerprint: bytes = b""                        # scene_fingerprint at upload
 
     @classmethod

@@ -40,6 +40,7 @@ from ..errors import RtlabError
 from ..scene.model import Scene
 from .kernels import SceneFeatures, load_program
 from .device_scene import device_scene
+from .light_buffers import light_buffer_args, light_buffer_defines
 from .tracing import TraceResult, require_scene
 from .variants import LAB_PROGRAMS, Variant, program_for, resolve_variant
 from .whitted_frames import FRAME_RUNNERS, NO_RAY, Launch  # noqa: F401  (NO_RAY: in a result's tree)
@@ -71,6 +72,7 @@ class WhittedResult:
     variant: Variant = field(default_factory=Variant)
     hits: TraceResult | None = None      # primary hits, with write_hits
     tree: dict | None = None             # node -> (H*W,) int32 triangle ids, with write_hits (bounces >= 1)
+    light_buffer: dict | None = None     # the shadow rays' light buffers, where the frame took them
 
     @property
     def median_ms(self) -> float:
@@ -142,10 +144,15 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
         features = features.general()
     wavefront = schedule == "wavefront"
     extra = shading_defines(features, shadows, bounces, fresnel, compact, write_hits, tree, schedule)
+    extra.update(light_buffer_defines(variant, extra["RT_SHADOWS"], lab))
     extra.update(defines or {})
     program = load_program(backend, step, variant, features, **extra)
     ds.set_constants(program, camera, variant)
-    runner = FRAME_RUNNERS["wavefront" if wavefront else "tree" if tree else "shadows"](backend, program, ds.scene_args(variant), camera, variant, shadows, extra, write_hits)
+    args, light_buffer = ds.scene_args(variant), None
+    if extra.get("RT_LIGHT_BUFFER"):
+        args, lights, light_buffer = light_buffer_args(ds, variant, lab)
+        program.set_constant("lights", lights)
+    runner = FRAME_RUNNERS["wavefront" if wavefront else "tree" if tree else "shadows"](backend, program, args, camera, variant, shadows, extra, write_hits)
     for _ in range(warmup):
         runner.frame()
     frames, walls = [], []
@@ -157,7 +164,8 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     result = WhittedResult(runner.image(), frames, float(np.median(walls)), launches,
                            {k: program.resources(k, runner.block(k)).as_dict() for k in runner.kernels()},
                            program.defines, step, shadows, int(bounces), extra["RT_MAX_DEPTH"],
-                           bool(extra.get("RT_COMPACT", 0)), schedule, backend.name, backend.device_name, variant)
+                           bool(extra.get("RT_COMPACT", 0)), schedule, backend.name, backend.device_name, variant,
+                           light_buffer=light_buffer)
     if write_hits:
         t, tri, u, v = runner.primary_hits()
         result.hits = TraceResult(t, tri, u, v, result.median_ms, backend.name, backend.device_name)

@@ -1,0 +1,289 @@
+"""The light buffer (Haines & Greenberg, "The light buffer: a shadow-testing accelerator", IEEE CG&A
+1986): for a point light, a cube of cells around it, each listing the triangles that may cross the
+cone of directions it covers, nearest to the light first. A shadow ray from a surface point o to the
+light lies in the cone of the cell of (o - light), and only a triangle nearer the light than o can
+block it, so the shadow test reads that cell's list in order and stops at a hit or at the first
+triangle farther from the light than o: a few triangle tests in place of a tree walk. A cell that a
+triangle crosses whole (Haines & Greenberg's "full occlusion") answers "blocked" for every o beyond
+that triangle with no test at all, and its list ends there
+(kernels/shared/rt_light_buffer.h; what it gains: docs/results.md, "Shadow rays through a light buffer").
+
+Conservative by construction, so the answer is the traversal's: a triangle enters every cell whose
+cone, widened by CONE_MARGIN in the face's (u, v) coordinates (far beyond float32 rounding of the
+kernel's cell lookup and of its ray), its clipped projection's bounding box overlaps, and its distance
+to the light is stored rounded down by DISTANCE_MARGIN. A cell whose list would pass MAX_LIST
+triangles stores none and sends its rays to the traversal.
+
+Layout, int32 words (rtlab.device.device_scene appends a light's block to the traversal's node_data,
+and the light's position.w carries the block's first word):
+    [0]                         the resolution R (cells a face edge)
+    [1 + 3 c] .. [3 + 3 c]      cell c = face * R * R + row * R + col: its first ref (a word offset
+                                from the block's start), its count (-1: "ask the traversal"), and the
+                                distance from the light beyond which its rays are blocked (float bits,
+                                inf for none): a triangle crosses every ray of the cone there
+    refs                        two words each: the triangle id and its distance to the light (float bits);
+                                a list holds only triangles nearer than its cell's blocking distance
+Faces: 2 * axis + (0 for +axis, 1 for -axis); col along axis + 1, row along axis + 2 (mod 3), each
+from (w_u / |w_axis| + 1) R / 2 with w = point - light.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import njit, prange
+
+CONE_MARGIN = 1e-4          # widening of a cell's cone, in its face's (u, v) coordinates (-1..1)
+DISTANCE_MARGIN = 1e-5      # stored distances are rounded down by this relative amount
+MAX_LIST = 64               # a longer list is dropped: its rays take the traversal
+COVER_MARGIN = 1e-6         # a triangle blocks a cell where its cone corners cross it this far inside
+FULL_MARGIN = 1e-4          # ... and only past its distance there, raised by this relative amount
+RESOLUTIONS = (256, 128, 64, 32)
+MAX_WORDS = 16 << 20        # a light's block at most 64 MiB: the finest resolution that fits
+
+
+@njit(cache=True)
+def _clip(poly, n, scale, bu, bv, out):
+    """Keep the part of polygon poly[:n] (rows m, u, v) where scale * m + bu * u + bv * v >= 0."""
+    k = 0
+    for i in range(n):
+        j = (i + 1) % n
+        fp = scale * poly[i, 0] + bu * poly[i, 1] + bv * poly[i, 2]
+        fq = scale * poly[j, 0] + bu * poly[j, 1] + bv * poly[j, 2]
+        if fp >= 0.0:
+            out[k] = poly[i]
+            k += 1
+        if (fp >= 0.0) != (fq >= 0.0):
+            s = fp / (fp - fq)
+            out[k] = poly[i] + s * (poly[j] - poly[i])
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _triangle_cells(v, light, res, out):
+    """The cells whose widened cones triangle v (3 x 3) may cross; writes them to out when it has
+    room, returns how many."""
+    count = 0
+    poly = np.empty((16, 3))
+    tmp = np.empty((16, 3))
+    scale = 1.0 + CONE_MARGIN
+    for face in range(6):
+        axis, sign = face // 2, 1.0 - 2.0 * (face % 2)
+        ua, va = (axis + 1) % 3, (axis + 2) % 3
+        for k in range(3):
+            poly[k, 0] = sign * (v[k, axis] - light[axis])
+            poly[k, 1] = v[k, ua] - light[ua]
+            poly[k, 2] = v[k, va] - light[va]
+        n = 3
+        for plane in range(4):                    # the face's pyramid: m >= |u| and m >= |v|, widened
+            bu = (-1.0 if plane == 0 else 1.0) if plane < 2 else 0.0
+            bv = 0.0 if plane < 2 else (-1.0 if plane == 2 else 1.0)
+            n = _clip(poly, n, scale, bu, bv, tmp)
+            poly[:n] = tmp[:n]
+            if n == 0:
+                break
+        if n == 0:
+            continue
+        lo_u = lo_v = np.inf
+        hi_u = hi_v = -np.inf
+        whole = False
+        for k in range(n):
+            m = poly[k, 0]
+            if not m > 1e-9 * (abs(poly[k, 1]) + abs(poly[k, 2])) or m == 0.0:
+                whole = True                      # a corner at the light: the whole face
+                break
+            lo_u, hi_u = min(lo_u, poly[k, 1] / m), max(hi_u, poly[k, 1] / m)
+            lo_v, hi_v = min(lo_v, poly[k, 2] / m), max(hi_v, poly[k, 2] / m)
+        c0 = r0 = 0
+        c1 = r1 = res - 1
+        if not whole:
+            pad = 2.0 * CONE_MARGIN
+            c0 = max(int(np.floor((lo_u - pad + 1.0) * 0.5 * res)), 0)
+            c1 = min(int(np.floor((hi_u + pad + 1.0) * 0.5 * res)), res - 1)
+            r0 = max(int(np.floor((lo_v - pad + 1.0) * 0.5 * res)), 0)
+            r1 = min(int(np.floor((hi_v + pad + 1.0) * 0.5 * res)), res - 1)
+        for r in range(r0, r1 + 1):
+            for c in range(c0, c1 + 1):
+                if count < out.shape[0]:
+                    out[count] = face * res * res + r * res + c
+                count += 1
+    return count
+
+
+@njit(cache=True, inline="always")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _point_triangle_distance(p, a, b, c):
+    """Distance from p to the triangle abc (the closest-point regions of Ericson, Real-Time Collision
+    Detection, sec. 5.1.5)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+    if d1 <= 0.0 and d2 <= 0.0:
+        return np.sqrt(_dot(ap, ap))
+    bp = p - b
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
+    if d3 >= 0.0 and d4 <= d3:
+        return np.sqrt(_dot(bp, bp))
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        q = p - (a + ab * (d1 / (d1 - d3)))
+        return np.sqrt(_dot(q, q))
+    cp = p - c
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
+    if d6 >= 0.0 and d5 <= d6:
+        return np.sqrt(_dot(cp, cp))
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        q = p - (a + ac * (d2 / (d2 - d6)))
+        return np.sqrt(_dot(q, q))
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        q = p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))))
+        return np.sqrt(_dot(q, q))
+    denom = 1.0 / (va + vb + vc)
+    q = p - (a + ab * (vb * denom) + ac * (vc * denom))
+    return np.sqrt(_dot(q, q))
+
+
+@njit(parallel=True, cache=True)
+def _distances(vertices, faces, light):
+    out = np.empty(faces.shape[0])
+    for i in prange(faces.shape[0]):
+        f = faces[i]
+        out[i] = _point_triangle_distance(light, vertices[f[0]], vertices[f[1]], vertices[f[2]])
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _cells_per_triangle(vertices, faces, light, res):
+    out = np.empty(faces.shape[0], np.int64)
+    none = np.empty(0, np.int64)
+    for i in prange(faces.shape[0]):
+        v = np.empty((3, 3))
+        for k in range(3):
+            v[k] = vertices[faces[i, k]]
+        out[i] = _triangle_cells(v, light, res, none)
+    return out
+
+
+@njit(cache=True)
+def _covers(v, light, direction):
+    """Distance from the light along `direction` to triangle v where the ray crosses it inside by a
+    relative margin (COVER_MARGIN of its barycentrics), else inf: Moller-Trumbore in float64."""
+    e1, e2 = v[1] - v[0], v[2] - v[0]
+    p = np.array([direction[1] * e2[2] - direction[2] * e2[1], direction[2] * e2[0] - direction[0] * e2[2],
+                  direction[0] * e2[1] - direction[1] * e2[0]])
+    det = _dot(e1, p)
+    if det == 0.0:
+        return np.inf
+    s = light - v[0]
+    b1 = _dot(s, p) / det
+    q = np.array([s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2], s[0] * e1[1] - s[1] * e1[0]])
+    b2 = _dot(direction, q) / det
+    t = _dot(e2, q) / det
+    if not (b1 >= COVER_MARGIN and b2 >= COVER_MARGIN and b1 + b2 <= 1.0 - COVER_MARGIN and t > 0.0):
+        return np.inf
+    return t * np.sqrt(_dot(direction, direction))
+
+
+@njit(cache=True)
+def _cover_distance(v, light, cell, res):
+    """How far from the light triangle v blocks every ray of the cell's widened cone: the largest
+    distance at the cone's four corner rays (a plane's distance over a convex cone peaks at a corner),
+    inf unless all four cross it inside."""
+    face, rc = cell // (res * res), cell % (res * res)
+    axis, sign = face // 2, 1.0 - 2.0 * (face % 2)
+    ua, va = (axis + 1) % 3, (axis + 2) % 3
+    pad = 2.0 * CONE_MARGIN
+    worst = 0.0
+    direction = np.empty(3)
+    for corner in range(4):
+        u = (rc % res + corner % 2) * 2.0 / res - 1.0 + (pad if corner % 2 else -pad)
+        w = (rc // res + corner // 2) * 2.0 / res - 1.0 + (pad if corner // 2 else -pad)
+        direction[axis], direction[ua], direction[va] = sign, u, w
+        worst = max(worst, _covers(v, light, direction))
+    return worst
+
+
+@njit(cache=True)
+def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits):
+    n_cells = 6 * res * res
+    cells = np.empty(max(per_triangle.max(), 1), np.int64)
+    v = np.empty((3, 3))
+    full = np.full(n_cells, np.inf)              # beyond this distance the cell's rays are blocked
+    for i in order:
+        for k in range(3):
+            v[k] = vertices[faces[i, k]]
+        m = _triangle_cells(v, light, res, cells)
+        for j in range(m):
+            c = cells[j]
+            if exact[i] < full[c]:
+                full[c] = min(full[c], _cover_distance(v, light, c, res) * (1.0 + FULL_MARGIN))
+    counts = np.zeros(n_cells, np.int64)
+    for i in order:
+        for k in range(3):
+            v[k] = vertices[faces[i, k]]
+        m = _triangle_cells(v, light, res, cells)
+        for j in range(m):
+            if exact[i] <= full[cells[j]]:
+                counts[cells[j]] += 1
+    kept = counts <= MAX_LIST
+    header = 1 + 3 * n_cells
+    words = np.empty(header + 2 * (counts * kept).sum(), np.int32)
+    words[0] = res
+    full32 = np.minimum(full, 3.0e38).astype(np.float32)
+    full_bits = np.where(full < 3.0e38, full32.view(np.int32), np.int32(0x7F800000))
+    at = header
+    fill = np.empty(n_cells, np.int64)
+    for c in range(n_cells):
+        words[1 + 3 * c] = at
+        words[2 + 3 * c] = counts[c] if kept[c] else -1
+        words[3 + 3 * c] = full_bits[c]
+        fill[c] = at
+        if kept[c]:
+            at += 2 * counts[c]
+    for i in order:
+        for k in range(3):
+            v[k] = vertices[faces[i, k]]
+        m = _triangle_cells(v, light, res, cells)
+        for j in range(m):
+            c = cells[j]
+            if kept[c] and exact[i] <= full[c]:
+                words[fill[c]] = i
+                words[fill[c] + 1] = dist_bits[i]
+                fill[c] += 2
+    return words
+
+
+def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np.ndarray | None:
+    """A point light's block of int32 words (the layout above) at the finest of RESOLUTIONS that fits
+    max_words, or None when none does."""
+    v = np.asarray(vertices, np.float64)
+    f = np.ascontiguousarray(faces, np.int64)
+    p = np.asarray(light, np.float64)
+    exact = _distances(v, f, p)
+    # float32 rounded down, never above the exact distance less its margin
+    distances = (exact * (1.0 - DISTANCE_MARGIN)).astype(np.float32)
+    distances = np.where(distances > exact, np.nextafter(distances, np.float32(0)), distances).astype(np.float32)
+    order = np.argsort(exact, kind="stable")
+    for res in RESOLUTIONS:
+        per_triangle = _cells_per_triangle(v, f, p, res)
+        if 1 + 18 * res * res + 2 * int(per_triangle.sum()) <= max_words or res == RESOLUTIONS[-1]:
+            words = _fill(v, f, order, per_triangle, p, res, exact, distances.view(np.int32))
+            if len(words) <= max_words:
+                return words
+    return None
+
+
+def light_buffer_stats(words: np.ndarray) -> dict:
+    """Resolution, cells, the traversal's share of cells, mean list length, MiB."""
+    res = int(words[0])
+    cells = words[1:1 + 18 * res * res].reshape(-1, 3)
+    kept = cells[cells[:, 1] >= 0, 1]
+    blocked = np.isfinite(cells[:, 2].view(np.float32))
+    return {"resolution": res, "cells": len(cells), "cells_to_traversal": int((cells[:, 1] < 0).sum()),
+            "cells_blocked_beyond": int(blocked.sum()), "mean_list": float(kept.mean()) if kept.size else 0.0,
+            "mib": words.nbytes / 2**20}
