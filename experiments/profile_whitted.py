@@ -7,8 +7,8 @@ list of render configurations, median of several frames.
 A configuration is ``traversal[:option...]`` with options ``compact``, ``noshadows``, ``twopass``,
 ``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level),
 ``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position),
-``RT_NAME=V`` (any -D), ``lbN`` (light buffers of at most N cells a face edge; ``RT_LIGHT_BUFFER=0``
-turns them off).
+``RT_NAME=V`` (any -D), ``lbN`` (light buffers of at most N cells a face edge), ``lblistN`` (their lists
+at most N triangles long); ``RT_LIGHT_BUFFER=0`` turns them off.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from collections import defaultdict
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
 from rtlab.accel import light_buffer
-from rtlab.accel.light_buffer import RESOLUTIONS
+from rtlab.accel.light_buffer import MAX_LIST, RESOLUTIONS
 from rtlab.device.whitted import render_whitted
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
@@ -46,6 +46,8 @@ def parse_config(text: str):
             kw["intersection"] = p[6:]
         elif p.startswith("fma"):
             opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
+        elif p.startswith("lblist"):
+            opts["light_buffer_list"] = int(p[6:])
         elif p.startswith("lb"):
             opts["light_buffer_res"] = int(p[2:])
         elif "=" in p and p.startswith("RT_"):
@@ -82,6 +84,7 @@ def main():
           f"({backend.device_name}), median of {args.repeats} frames")
     for text in args.configs.split(","):
         variant, opts = parse_config(text)
+        light_buffer.MAX_LIST = opts.get("light_buffer_list", MAX_LIST)
         light_buffer.RESOLUTIONS = tuple(r for r in RESOLUTIONS if r <= opts.get("light_buffer_res", RESOLUTIONS[0]))
         r = render_whitted(scene, backend, variant, shadows=opts["shadows"], bounces=args.bounces,
                            compact=opts["compact"], schedule=opts["schedule"], repeats=args.repeats, warmup=2,

@@ -209,7 +209,7 @@ def _cover_distance(v, light, cell, res):
 
 
 @njit(cache=True)
-def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits):
+def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, max_list):
     n_cells = 6 * res * res
     cells = np.empty(max(per_triangle.max(), 1), np.int64)
     v = np.empty((3, 3))
@@ -230,7 +230,7 @@ def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits):
         for j in range(m):
             if exact[i] <= full[cells[j]]:
                 counts[cells[j]] += 1
-    kept = counts <= MAX_LIST
+    kept = counts <= max_list
     header = 1 + 3 * n_cells
     words = np.empty(header + 2 * (counts * kept).sum(), np.int32)
     words[0] = res
@@ -272,7 +272,7 @@ def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np
     for res in RESOLUTIONS:
         per_triangle = _cells_per_triangle(v, f, p, res)
         if 1 + 18 * res * res + 2 * int(per_triangle.sum()) <= max_words or res == RESOLUTIONS[-1]:
-            words = _fill(v, f, order, per_triangle, p, res, exact, distances.view(np.int32))
+            words = _fill(v, f, order, per_triangle, p, res, exact, distances.view(np.int32), MAX_LIST)
             if len(words) <= max_words:
                 return words
     return None

@@ -39,7 +39,7 @@ def light_buffer_args(ds, variant, lab: bool = False) -> tuple[list, np.ndarray,
     args = ds.scene_args(variant)
     family = accel_family(variant.traversal)
     key = (family, tuple(tuple(float(c) for c in light.position) for light in ds.scene.lights),
-           light_buffer.RESOLUTIONS, light_buffer.MAX_WORDS)
+           light_buffer.RESOLUTIONS, light_buffer.MAX_WORDS, light_buffer.MAX_LIST)
     made = ds.light_buffers.get(key)
     if made is None or made[0] is not ds.accel[family][0]:
         made = _make(ds, ds.accel[family][0], key[1])
