@@ -89,7 +89,7 @@ def _triangle_cells(v, light, res, out):
         whole = False
         for k in range(n):
             m = poly[k, 0]
-            if not m > 1e-9 * (abs(poly[k, 1]) + abs(poly[k, 2])) or m == 0.0:
+            if not m > 1e-9 * (abs(poly[k, 1]) + abs(poly[k, 2])):
                 whole = True                      # a corner at the light: the whole face
                 break
             lo_u, hi_u = min(lo_u, poly[k, 1] / m), max(hi_u, poly[k, 1] / m)
@@ -208,6 +208,8 @@ def _cover_distance(v, light, cell, res):
     return worst
 
 
+# Why many parameters: one numba pass over the triangles takes the geometry, its order and per-triangle
+# figures made in numpy beforehand, and the build's settings, as arrays and scalars (no objects in nopython).
 @njit(cache=True)
 def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, max_list):
     n_cells = 6 * res * res
