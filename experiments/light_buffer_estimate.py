@@ -20,71 +20,8 @@ import rtlab
 from rtlab.accel import light_buffer
 from rtlab.accel.bvh_stats import traversal_bvh, traversal_counts
 from rtlab.accel.light_buffer import build_light_buffer, light_buffer_stats
-from rtlab.geometry import moller_trumbore_t, ray_scene_interval, slab_interval
+from rtlab.geometry import moller_trumbore_t
 from rtlab.scene.materials import MATERIAL_PRESETS
-
-LEAF_BITS = 4
-MAX_LEAF = (1 << LEAF_BITS) - 1
-
-
-@njit(parallel=True, cache=True)
-def any_hit_counts(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, depth, vertices, faces,
-                   origins, directions):
-    """Per shadow ray (t in (0, 1)): inner-node visits, triangle tests, occluded."""
-    n = origins.shape[0]
-    nodes = np.zeros(n, np.int64)
-    tris = np.zeros(n, np.int64)
-    occluded = np.zeros(n, np.bool_)
-    for i in prange(n):
-        o, d = origins[i], directions[i]
-        inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, 0.0)
-        if not t0 <= t1:
-            continue
-        stack = np.empty(depth + 1, np.int64)
-        sp = 0
-        ref = 0
-        n_nodes = n_tris = 0
-        done = False
-        while not done:
-            while ref >= 0:
-                n_nodes += 1
-                e0, x0 = slab_interval(o, inv, child_lo[ref, 0], child_hi[ref, 0], 0.0, 1.0)
-                e1, x1 = slab_interval(o, inv, child_lo[ref, 1], child_hi[ref, 1], 0.0, 1.0)
-                hit0 = e0 <= x0
-                hit1 = e1 <= x1
-                c0, c1 = child_ref[ref, 0], child_ref[ref, 1]
-                if hit0 and hit1:
-                    near0 = e0 <= e1
-                    stack[sp] = c1 if near0 else c0
-                    sp += 1
-                    ref = c0 if near0 else c1
-                elif hit0 or hit1:
-                    ref = c0 if hit0 else c1
-                else:
-                    if sp == 0:
-                        done = True
-                        break
-                    sp -= 1
-                    ref = stack[sp]
-            if done:
-                break
-            bits = ~ref
-            first, count = bits >> LEAF_BITS, bits & MAX_LEAF
-            for j in range(first, first + count):
-                f = faces[objects[j]]
-                n_tris += 1
-                t = moller_trumbore_t(o, d, vertices[f[0]], vertices[f[1]], vertices[f[2]])
-                if t > 0.0 and t < 1.0:
-                    occluded[i] = True
-                    done = True
-                    break
-            if done or sp == 0:
-                break
-            sp -= 1
-            ref = stack[sp]
-        nodes[i], tris[i] = n_nodes, n_tris
-    return nodes, tris, occluded
-
 
 @njit(parallel=True, cache=True)
 def buffer_counts(words, vertices, faces, light, origins, directions):
@@ -157,7 +94,8 @@ def shadow_rays(scene, bvh, size):
         o = so[mirror]
         dd = d[mirror]
         d = dd - 2.0 * (dd * ng[mirror]).sum(1)[:, None] * ng[mirror]
-    return np.concatenate(out_o), np.concatenate(out_d), light
+    as_float32 = lambda a: np.concatenate(a).astype(np.float32).astype(np.float64)   # the rays the kernels get
+    return as_float32(out_o), as_float32(out_d), light
 
 
 def main():
@@ -173,11 +111,8 @@ def main():
     bvh = traversal_bvh(scene.vertices, scene.faces)
     so, sd, light = shadow_rays(scene, bvh, args.size)
     print(f"{args.scene}: {len(F):,} triangles, {len(so):,} shadow rays, light {light}")
-    b = np.asarray(bvh.bounds, np.float64)
-    pad = np.abs(b).max() * 2.0 ** -20 + (b[1] - b[0]).max() * 1e-6 + 1e-30
-    nodes, ntris, occ = any_hit_counts(bvh.child_lo.astype(np.float64), bvh.child_hi.astype(np.float64),
-                                       bvh.child_ref.astype(np.int64), np.asarray(bvh.objects, np.int64),
-                                       b[0] - pad, b[1] + pad, int(bvh.depth), V, F, so, sd)
+    nodes, ntris, tri, _ = traversal_counts(bvh, V, F, so, sd, tmax=1.0, any_hit=True)
+    occ = tri >= 0
     bvh_cost = 60 * nodes + 35 * ntris
     print(f"BVH any-hit: occluded {occ.mean():.3f}; nodes mean {nodes.mean():.1f} p99 {np.percentile(nodes, 99):.0f}; "
           f"tris mean {ntris.mean():.1f}; cost mean {bvh_cost.mean():.0f} instr")

@@ -64,8 +64,9 @@ def sah_cost(bvh: Bvh, cost_traversal: float = 1.0, cost_intersect: float = 1.0)
 
 @njit(parallel=True, cache=True)
 def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, depth, vertices, faces,
-                    origins, directions, tmin):
-    """Per ray: (inner-node visits, triangle tests, closest triangle id or -1, its t)."""
+                    origins, directions, tmin, tmax, any_hit):
+    """Per ray, hits in (tmin, tmax): (inner-node visits, triangle tests, closest triangle id or -1, its t);
+    with any_hit the walk stops at the first hit (a shadow ray's), which it returns."""
     n = origins.shape[0]
     nodes = np.zeros(n, np.int64)
     tris = np.zeros(n, np.int64)
@@ -84,8 +85,8 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
         while True:
             while ref >= 0:
                 n_nodes += 1
-                e0, x0 = slab_interval(o, inv, child_lo[ref, 0], child_hi[ref, 0], tmin, np.inf)
-                e1, x1 = slab_interval(o, inv, child_lo[ref, 1], child_hi[ref, 1], tmin, np.inf)
+                e0, x0 = slab_interval(o, inv, child_lo[ref, 0], child_hi[ref, 0], tmin, tmax)
+                e1, x1 = slab_interval(o, inv, child_lo[ref, 1], child_hi[ref, 1], tmin, tmax)
                 hit0 = e0 <= x0 and e0 <= best_t
                 hit1 = e1 <= x1 and e1 <= best_t
                 c0, c1 = child_ref[ref, 0], child_ref[ref, 1]
@@ -110,9 +111,11 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
                 n_tris += 1
                 f = faces[tri]
                 t = moller_trumbore_t(o, d, vertices[f[0]], vertices[f[1]], vertices[f[2]])
-                if t > tmin and (t < best_t or (t == best_t and tri < best)):
+                if t > tmin and t < tmax and (t < best_t or (t == best_t and tri < best)):
                     best_t, best = t, tri
-            if sp == 0:
+                    if any_hit:
+                        break
+            if sp == 0 or (any_hit and best >= 0):
                 break
             sp -= 1
             ref = stack[sp]
@@ -120,7 +123,8 @@ def count_traversal(child_lo, child_hi, child_ref, objects, scene_lo, scene_hi, 
     return nodes, tris, hit_tri, hit_t
 
 
-def traversal_counts(bvh: Bvh, vertices, faces, origins, directions, tmin: float = 0.0):
+def traversal_counts(bvh: Bvh, vertices, faces, origins, directions, tmin: float = 0.0, tmax: float = np.inf,
+                     any_hit: bool = False):
     """count_traversal of ``bvh`` for rays (origins, directions): (nodes, tris, tri ids, t) per ray."""
     b = np.asarray(bvh.bounds, np.float64)           # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(b).max() * 2.0 ** -20 + (b[1] - b[0]).max() * 1e-6 + 1e-30
@@ -129,4 +133,5 @@ def traversal_counts(bvh: Bvh, vertices, faces, origins, directions, tmin: float
                            bvh.child_ref.astype(np.int64), np.asarray(bvh.objects, np.int64), box[0], box[1],
                            int(bvh.depth), np.asarray(vertices, np.float32).astype(np.float64),
                            np.asarray(faces, np.int64), np.asarray(origins, np.float32).astype(np.float64),
-                           np.asarray(directions, np.float32).astype(np.float64), float(tmin))
+                           np.asarray(directions, np.float32).astype(np.float64), float(tmin),
+                           float(tmax), bool(any_hit))

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import moller_trumbore_t
 from ..jit import njit, prange
 
 CONE_MARGIN = 1e-4          # widening of a cell's cone, in its face's (u, v) coordinates (-1..1)
@@ -116,36 +117,25 @@ def _dot(a, b):
 
 
 @njit(cache=True)
-def _point_triangle_distance(p, a, b, c):
-    """Distance from p to the triangle abc (the closest-point regions of Ericson, Real-Time Collision
-    Detection, sec. 5.1.5)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+def _closest_point(p, a, b, c):
+    """The point of triangle abc closest to p (the Voronoi regions of Ericson, Real-Time Collision
+    Detection, sec. 5.1.5: a corner, a point of an edge, or of the face)."""
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2, d3, d4, d5, d6 = _dot(ab, ap), _dot(ac, ap), _dot(ab, bp), _dot(ac, bp), _dot(ab, cp), _dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
     if d1 <= 0.0 and d2 <= 0.0:
-        return np.sqrt(_dot(ap, ap))
-    bp = p - b
-    d3, d4 = _dot(ab, bp), _dot(ac, bp)
+        return a
     if d3 >= 0.0 and d4 <= d3:
-        return np.sqrt(_dot(bp, bp))
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        q = p - (a + ab * (d1 / (d1 - d3)))
-        return np.sqrt(_dot(q, q))
-    cp = p - c
-    d5, d6 = _dot(ab, cp), _dot(ac, cp)
+        return b
     if d6 >= 0.0 and d5 <= d6:
-        return np.sqrt(_dot(cp, cp))
-    vb = d5 * d2 - d1 * d6
+        return c
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        return a + ab * (d1 / (d1 - d3))
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        q = p - (a + ac * (d2 / (d2 - d6)))
-        return np.sqrt(_dot(q, q))
-    va = d3 * d6 - d5 * d4
+        return a + ac * (d2 / (d2 - d6))
     if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        q = p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))))
-        return np.sqrt(_dot(q, q))
-    denom = 1.0 / (va + vb + vc)
-    q = p - (a + ab * (vb * denom) + ac * (vc * denom))
-    return np.sqrt(_dot(q, q))
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))
+    return a + ab * (vb / (va + vb + vc)) + ac * (vc / (va + vb + vc))
 
 
 @njit(parallel=True, cache=True)
@@ -153,7 +143,8 @@ def _distances(vertices, faces, light):
     out = np.empty(faces.shape[0])
     for i in prange(faces.shape[0]):
         f = faces[i]
-        out[i] = _point_triangle_distance(light, vertices[f[0]], vertices[f[1]], vertices[f[2]])
+        q = light - _closest_point(light, vertices[f[0]], vertices[f[1]], vertices[f[2]])
+        out[i] = np.sqrt(_dot(q, q))
     return out
 
 
@@ -170,30 +161,11 @@ def _cells_per_triangle(vertices, faces, light, res):
 
 
 @njit(cache=True)
-def _covers(v, light, direction):
-    """Distance from the light along `direction` to triangle v where the ray crosses it inside by a
-    relative margin (COVER_MARGIN of its barycentrics), else inf: Moller-Trumbore in float64."""
-    e1, e2 = v[1] - v[0], v[2] - v[0]
-    p = np.array([direction[1] * e2[2] - direction[2] * e2[1], direction[2] * e2[0] - direction[0] * e2[2],
-                  direction[0] * e2[1] - direction[1] * e2[0]])
-    det = _dot(e1, p)
-    if det == 0.0:
-        return np.inf
-    s = light - v[0]
-    b1 = _dot(s, p) / det
-    q = np.array([s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2], s[0] * e1[1] - s[1] * e1[0]])
-    b2 = _dot(direction, q) / det
-    t = _dot(e2, q) / det
-    if not (b1 >= COVER_MARGIN and b2 >= COVER_MARGIN and b1 + b2 <= 1.0 - COVER_MARGIN and t > 0.0):
-        return np.inf
-    return t * np.sqrt(_dot(direction, direction))
-
-
-@njit(cache=True)
-def _cover_distance(v, light, cell, res):
-    """How far from the light triangle v blocks every ray of the cell's widened cone: the largest
+def _cover_distance(inner, light, cell, res):
+    """How far from the light a triangle blocks every ray of the cell's widened cone: the largest
     distance at the cone's four corner rays (a plane's distance over a convex cone peaks at a corner),
-    inf unless all four cross it inside."""
+    inf unless all four cross ``inner``, the triangle shrunk about its centroid (_shrunk), so that they
+    cross the triangle itself inside by a margin."""
     face, rc = cell // (res * res), cell % (res * res)
     axis, sign = face // 2, 1.0 - 2.0 * (face % 2)
     ua, va = (axis + 1) % 3, (axis + 2) % 3
@@ -204,8 +176,19 @@ def _cover_distance(v, light, cell, res):
         u = (rc % res + corner % 2) * 2.0 / res - 1.0 + (pad if corner % 2 else -pad)
         w = (rc // res + corner // 2) * 2.0 / res - 1.0 + (pad if corner // 2 else -pad)
         direction[axis], direction[ua], direction[va] = sign, u, w
-        worst = max(worst, _covers(v, light, direction))
+        t = moller_trumbore_t(light, direction, inner[0], inner[1], inner[2])
+        if not t > 0.0:
+            return np.inf
+        worst = max(worst, t * np.sqrt(_dot(direction, direction)))
     return worst
+
+
+@njit(cache=True)
+def _shrunk(v):
+    """Triangle v shrunk about its centroid so that its points are those of v whose barycentrics are all
+    at least COVER_MARGIN."""
+    centre = (v[0] + v[1] + v[2]) / 3.0
+    return centre + (v - centre) * (1.0 - 3.0 * COVER_MARGIN)
 
 
 # Why many parameters: one numba pass over the triangles takes the geometry, its order and per-triangle
@@ -219,11 +202,12 @@ def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, ma
     for i in order:
         for k in range(3):
             v[k] = vertices[faces[i, k]]
+        inner = _shrunk(v)
         m = _triangle_cells(v, light, res, cells)
         for j in range(m):
             c = cells[j]
             if exact[i] < full[c]:
-                full[c] = min(full[c], _cover_distance(v, light, c, res) * (1.0 + FULL_MARGIN))
+                full[c] = min(full[c], _cover_distance(inner, light, c, res) * (1.0 + FULL_MARGIN))
     counts = np.zeros(n_cells, np.int64)
     for i in order:
         for k in range(3):
