@@ -24,14 +24,12 @@ from rtlab.geometry import moller_trumbore_t
 from rtlab.scene.materials import MATERIAL_PRESETS
 
 @njit(parallel=True, cache=True)
-def buffer_counts(words, vertices, faces, light, origins, directions):
+def _buffer_counts(res, records, blocked_at, ref_id, ref_dist, vertices, faces, light, origins, directions):
     """Per shadow ray, what rt_light_buffer.h does: triangles tested (-1: the cell sends the ray to
     the traversal; 0 also where the cell's blocking distance answers), occluded."""
     n = origins.shape[0]
     tests = np.zeros(n, np.int64)
     occluded = np.zeros(n, np.bool_)
-    dists = words.view(np.float32)
-    res = words[0]
     for i in prange(n):
         w = origins[i] - light
         axis = 0
@@ -43,7 +41,7 @@ def buffer_counts(words, vertices, faces, light, origins, directions):
         col = min(int((w[(axis + 1) % 3] / m + 1.0) * 0.5 * res), res - 1)
         row = min(int((w[(axis + 2) % 3] / m + 1.0) * 0.5 * res), res - 1)
         cell = ((2 * axis + (1 if w[axis] < 0 else 0)) * res + row) * res + col
-        first, count, blocked = words[1 + 3 * cell], words[2 + 3 * cell], dists[3 + 3 * cell]
+        first, count, blocked = records[cell, 0], records[cell, 1], blocked_at[cell]
         if count < 0:
             tests[i] = -1
             continue
@@ -53,16 +51,25 @@ def buffer_counts(words, vertices, faces, light, origins, directions):
             continue
         k = 0
         for j in range(count):
-            if dists[first + 2 * j + 1] > reach:
+            if ref_dist[first + j] > reach:
                 break
             k += 1
-            f = faces[words[first + 2 * j]]
+            f = faces[ref_id[first + j]]
             t = moller_trumbore_t(origins[i], directions[i], vertices[f[0]], vertices[f[1]], vertices[f[2]])
             if t > 0.0 and t < 1.0:
                 occluded[i] = True
                 break
         tests[i] = k
     return tests, occluded
+
+
+def buffer_counts(words, vertices, faces, light, origins, directions):
+    """_buffer_counts on a block of rtlab.accel.light_buffer's layout."""
+    records = light_buffer.cell_records(words)
+    ref_id, ref_dist = light_buffer.decode_refs(words, 0, len(words))     # every word read as a ref
+    blocked = records[:, 2].astype(np.int32).view(np.float32)
+    return _buffer_counts(int(words[0]), records, blocked, ref_id, ref_dist, vertices, faces, light, origins,
+                          directions)
 
 
 def shadow_rays(scene, bvh, size):

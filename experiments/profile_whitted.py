@@ -7,7 +7,8 @@ list of render configurations, median of several frames.
 A configuration is ``traversal[:option...]`` with options ``compact``, ``noshadows``, ``twopass``,
 ``regsN`` (register cap), ``blockWxH``, ``isect=NAME``, ``wavefront`` (one launch per level),
 ``fmaN`` (RT_BVH_BOX_FMA=N: the BVH's fused box test on or off, whatever the scene's position),
-``RT_NAME=V`` (any -D), ``lbN`` (light buffers of at most N cells a face edge), ``lblistN`` (their lists
+``RT_NAME=V`` (any -D), ``packN`` (the packing launch's block, N threads),
+``lbN`` (light buffers of at most N cells a face edge), ``lbmibN`` (of at most N MiB), ``lblistN`` (their lists
 at most N triangles long); ``RT_LIGHT_BUFFER=0`` turns them off.
 """
 from __future__ import annotations
@@ -19,8 +20,10 @@ from collections import defaultdict
 from rtlab.backends import get_backend
 from rtlab.device.kernels import Variant
 from rtlab.accel import light_buffer
-from rtlab.accel.light_buffer import MAX_LIST, RESOLUTIONS
+from rtlab.accel.light_buffer import MAX_LIST, MAX_WORDS, RESOLUTIONS
+from rtlab.device import whitted_frames
 from rtlab.device.whitted import render_whitted
+from rtlab.device.whitted_frames import PACK_BLOCK, PACK_KERNELS
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
 
@@ -46,6 +49,10 @@ def parse_config(text: str):
             kw["intersection"] = p[6:]
         elif p.startswith("fma"):
             opts["defines"]["RT_BVH_BOX_FMA"] = int(p[3:])
+        elif p.startswith("pack"):
+            opts["pack_block"] = int(p[4:])
+        elif p.startswith("lbmib"):
+            opts["light_buffer_mib"] = int(p[5:])
         elif p.startswith("lblist"):
             opts["light_buffer_list"] = int(p[6:])
         elif p.startswith("lb"):
@@ -85,7 +92,12 @@ def main():
     for text in args.configs.split(","):
         variant, opts = parse_config(text)
         light_buffer.MAX_LIST = opts.get("light_buffer_list", MAX_LIST)
-        light_buffer.RESOLUTIONS = tuple(r for r in RESOLUTIONS if r <= opts.get("light_buffer_res", RESOLUTIONS[0]))
+        finest = opts.get("light_buffer_res", RESOLUTIONS[0])
+        light_buffer.RESOLUTIONS = tuple(finest >> k for k in range(8) if finest >> k >= RESOLUTIONS[-1])
+        light_buffer.MAX_WORDS = MAX_WORDS if finest <= RESOLUTIONS[0] else 1 << 30   # finer than the library's: room for it
+        if "light_buffer_mib" in opts:
+            light_buffer.MAX_WORDS = opts["light_buffer_mib"] << 18
+        whitted_frames.PACK_BLOCK = (opts.get("pack_block", PACK_BLOCK[0]),)
         r = render_whitted(scene, backend, variant, shadows=opts["shadows"], bounces=args.bounces,
                            compact=opts["compact"], schedule=opts["schedule"], repeats=args.repeats, warmup=2,
                            defines=opts["defines"])
@@ -98,8 +110,8 @@ def main():
             print(f"    light buffers: {blocks} (built in {r.light_buffer['build_s']:.1f} s)")
         by_level = defaultdict(lambda: [0, 0.0])
         for launch in r.launches:
-            by_level[launch.level if launch.kernel != "pack_frame" else "pack"][0] += launch.rays
-            by_level[launch.level if launch.kernel != "pack_frame" else "pack"][1] += launch.ms
+            by_level[launch.level if launch.kernel not in PACK_KERNELS else "pack"][0] += launch.rays
+            by_level[launch.level if launch.kernel not in PACK_KERNELS else "pack"][1] += launch.ms
         print("    by level: " + "  ".join(f"L{k}: {v[0]:,} rays {v[1]:.3f} ms" for k, v in by_level.items()))
         if args.per_launch:
             for launch in r.launches:

@@ -27,7 +27,7 @@ from .paths import REFERENCE_KERNEL_DIR
 
 # The headers whose #defines the host reads (kernels/shared/)
 HEADERS = ("rt_port.h", "rt_intersect.h", "rt_kdtree.h", "rt_kd_ropes.h", "rt_bvh.h", "rt_bvh8.h", "rt_bvh4.h",
-           "rt_bvh_packet.h", "rt_bvh_wide.h", "rt_lanes.h", "rt_shade.h", "rt_whitted.h")
+           "rt_bvh_packet.h", "rt_bvh_wide.h", "rt_lanes.h", "rt_shade.h", "rt_whitted.h", "rt_light_buffer.h")
 
 _DIRECTIVE_RE = re.compile(r"^[ \t]*#[ \t]*(\w+)[ \t]*(.*?)[ \t]*$")
 _COMMENT_RE = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)

@@ -132,7 +132,9 @@ def test_host_constants_are_what_the_kernels_compiled(backend, tmp_path):
     wrong, seen = [], set()
     for program, variant in builds:
         variant = resolve_variant(variant, backend)
-        defines = build_defines(variant, features)
+        # the frames' program with its shadow rays through light buffers (rt_light_buffer.h's layout)
+        defines = {**build_defines(variant, features), **({"RT_SHADOWS": 1, "RT_LIGHT_BUFFER": 1}
+                                                          if program == "library_bounces" else {})}
         assert defines["RT_TRACE_THREADS"] == TRACE_BLOCK
         if variant.spec.lanes:
             assert defines["RT_LANES"] == PACKET_LANES == variant.spec.rays_per_item

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rtlab.accel import light_buffer
-from rtlab.accel.light_buffer import build_light_buffer, light_buffer_stats
+from rtlab.accel.light_buffer import build_light_buffer, cell_records, decode_refs, light_buffer_stats
 from rtlab.device.light_buffers import light_buffer_defines
 from rtlab.device.variants import Variant
 from rtlab.device.whitted import render_whitted
@@ -34,6 +34,22 @@ def _segment_blocked(o, light, tris):
     return bool(np.any((det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < 1)))
 
 
+def _distance_to_triangle(p, tri):
+    """Float64 distance from point p to triangle tri (3 x 3): to its plane where p projects inside it,
+    else to the nearest of its edges."""
+    a, b, c = tri
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n)
+    q = p - np.dot(p - a, n) * n
+    inside = all(np.dot(np.cross(v1 - v0, q - v0), n) >= 0 for v0, v1 in ((a, b), (b, c), (c, a)))
+    if inside:
+        return abs(np.dot(p - a, n))
+    def to_segment(v0, v1):
+        s = np.clip(np.dot(p - v0, v1 - v0) / np.dot(v1 - v0, v1 - v0), 0.0, 1.0)
+        return np.linalg.norm(p - (v0 + s * (v1 - v0)))
+    return min(to_segment(a, b), to_segment(b, c), to_segment(c, a))
+
+
 def _buffer_blocked(words, o, light, tris):
     """What rt_light_buffer.h answers for the shadow ray o -> light, in float64; None: the traversal."""
     res = int(words[0])
@@ -43,14 +59,14 @@ def _buffer_blocked(words, o, light, tris):
     u, v = w[(axis + 1) % 3] / m, w[(axis + 2) % 3] / m
     cell = ((2 * axis + (w[axis] < 0)) * res + min(int((v + 1) * 0.5 * res), res - 1)) * res \
         + min(int((u + 1) * 0.5 * res), res - 1)
-    first, count, blocked = words[1 + 3 * cell], words[2 + 3 * cell], words[3 + 3 * cell:4 + 3 * cell].view(np.float32)[0]
+    first, count, blocked_bits = cell_records(words)[cell]
+    blocked = np.int32(blocked_bits).view(np.float32)
     if count < 0:
         return None
     reach = np.linalg.norm(w)
     if reach > blocked:
         return True
-    refs = words[first:first + 2 * count].reshape(-1, 2)
-    for tri, dist in zip(refs[:, 0], refs[:, 1].view(np.float32)):
+    for tri, dist in zip(*decode_refs(words, first, count)):
         if dist > reach:
             break
         if _segment_blocked(o, light, tris[tri:tri + 1]):
@@ -87,8 +103,16 @@ def test_lists_are_short_and_long_ones_go_to_the_traversal():
     rng = np.random.default_rng(3)
     tris = rng.uniform(-1, 1, (3000, 3, 3)) * 0.05 + np.array([2.0, 0.0, 0.0])      # a dense clump
     words = build_light_buffer(tris.reshape(-1, 3), np.arange(9000).reshape(-1, 3), np.zeros(3))
-    counts = words[2:1 + 3 * 6 * int(words[0]) ** 2:3]
+    records = cell_records(words)
+    counts = records[:, 1]
     assert counts.max() <= light_buffer.MAX_LIST and (counts < 0).any()
+    # the refs: every triangle id of a list is one of the scene's, their distances never above the true
+    # ones (float64) and rising along the list
+    exact = np.array([_distance_to_triangle(np.zeros(3), t) for t in tris])
+    for first, count, _ in records[counts > 0][::97]:
+        ids, dist = decode_refs(words, first, count)
+        assert (ids < len(tris)).all() and (dist <= exact[ids]).all() and (np.diff(dist) >= 0).all()
+        assert (dist >= exact[ids] * (1 - 2.0 ** -10)).all()      # 12 id bits leave 12 of the mantissa
     assert build_light_buffer(tris.reshape(-1, 3), np.arange(9000).reshape(-1, 3), np.zeros(3), max_words=1000) is None
 
 

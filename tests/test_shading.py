@@ -107,7 +107,7 @@ def test_wavefront_traces_the_trees_rays(backend, glass, make):
         tree = render_whitted(scene, backend, bounces=bounces, write_hits=True)
         wave = render_whitted(scene, backend, bounces=bounces, write_hits=True, schedule="wavefront")
         assert [l.kernel for l in wave.launches] == (["trace_wavefront_primary"] + ["trace_wavefront"] * bounces
-                                                      + ["pack_frame"])
+                                                      + ["pack_pending"])
         assert sorted(k for k, v in tree.tree.items() if np.any(v != NO_RAY)) == sorted(wave.tree)
         for node, ids in wave.tree.items():
             np.testing.assert_array_equal(ids, tree.tree[node], err_msg=node)

@@ -66,19 +66,20 @@ RT_KERNEL void shade_records(RT_SCENE_PARAMS, RT_LEVEL_IN, RT_OUT(float4) frame_
 #endif
 
 #else /* RT_WAVEFRONT */
-/* The queue a launch fills: (origin, weight), (direction, pixel bits), path, two counts, capacity. */
+/* The queue a launch fills: (origin, weight), (direction, pixel bits), path, counts (reflection,
+ * refraction, pending pixels), capacity. */
 #define RT_QUEUE_OUT RT_OUT(float4) q_ow, RT_OUT(float4) q_dp, RT_OUT(int) q_path, RT_OUT(int) q_count, int q_cap
 
-/* Level 0: primary rays; their children go to the queue. */
-RT_KERNEL void trace_wavefront_primary(RT_SCENE_PARAMS, RT_OUT(float4) frame_rgb, RT_OUT(float4) hits_out,
-                                       RT_QUEUE_OUT RT_WITH_SHADING)
+/* Level 0: primary rays; their children go to the queue, their pixels to `pixels` or `pending`. */
+RT_KERNEL void trace_wavefront_primary(RT_SCENE_PARAMS, RT_OUT(float4) frame_rgb, RT_OUT(unsigned int) pixels,
+                                       RT_OUT(int) pending, RT_OUT(float4) hits_out, RT_QUEUE_OUT RT_WITH_SHADING)
 {
     int x, y;
     launch_pixel(&x, &y);
     if (x >= rt_frame->width || y >= rt_frame->height)
         return;
-    trace_wavefront_pixel(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, x, y, frame_rgb, hits_out, q_ow, q_dp,
-                          q_path, q_count, q_cap);
+    trace_wavefront_pixel(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, x, y, frame_rgb, pixels, pending,
+                          hits_out, q_ow, q_dp, q_path, q_count, q_cap);
 }
 
 /* Level >= 1: every ray of the level, reflection and refraction. */
@@ -91,6 +92,16 @@ RT_KERNEL void trace_wavefront(RT_SCENE_PARAMS, RT_IN(float4) in_ow, RT_IN(float
         return;
     trace_wavefront_ray(RT_SCENE_ARGS, rt_frame, rt_lights, rt_materials, level, i, in_ow, in_dp, in_path, n_front,
                         in_cap, frame_rgb, hits_out, q_ow, q_dp, q_path, q_count, q_cap);
+}
+
+/* After the last level: the pending pixels of the float4 frame to RGBA8. */
+RT_KERNEL void pack_pending(RT_IN(float4) frame_rgb, RT_IN(int) pending, RT_OUT(unsigned int) pixels, int n)
+{
+    int i = rt_global_id(0);
+    if (i >= n)
+        return;
+    int pixel = pending[i];
+    pixels[pixel] = pack_rgba8(xyz(frame_rgb[pixel]));
 }
 #endif /* RT_WAVEFRONT */
 

@@ -11,6 +11,14 @@
 #ifndef RT_LIGHT_BUFFER_H
 #define RT_LIGHT_BUFFER_H
 
+/* The block's layout (rtlab/accel/light_buffer.py reads these): a header of 4 words, then two words a
+ * cell, the first of them the cell's first ref (a word of the block) above its count's 7 bits, a count
+ * of 127 sending the cell's rays to the traversal. */
+#define RT_LB_HEADER_WORDS 4
+#define RT_LB_CELL_WORDS 2
+#define RT_LB_COUNT_BITS 7
+#define RT_LB_TO_TRAVERSAL ((1 << RT_LB_COUNT_BITS) - 1)
+
 /* The cell of point w (relative to the light) in a block of resolution res, or -1 for w = 0 */
 RT_FN int light_buffer_cell(float3 w, int res)
 {
@@ -27,33 +35,61 @@ RT_FN int light_buffer_cell(float3 w, int res)
     return (face * res + row) * res + col;
 }
 
-/* Whether the segment from surface s to the point light is free (light_visible's answer) */
-RT_FN int light_visible_buffered(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Surface *s, float4 light)
+/* Whether a triangle crosses the shadow ray (its t in (0, 1)) */
+RT_FN int light_buffer_blocks(RT_SCENE_PARAMS, const Ray *shadow, int tri)
 {
-    float3 light_pos = xyz(light);
-    int base = rt_as_int(light.w);
+    Hit hit = make_miss(1.0f);
+    return intersect_tri(RT_SCENE_ARGS, shadow, tri, &hit);
+}
+
+/* Ref k of a list: the triangle id in the low id_bits, above it its distance to the light, the float's
+ * bits truncated (never above the true distance). */
+RT_FN float light_buffer_ref_distance(int ref, int id_bits)
+{
+    return rt_as_float((int)(((unsigned int)ref >> id_bits) << (id_bits - 1)));
+}
+
+/* Whether the segment from surface s to the point light is free (light_visible's answer). The list is
+ * walked two refs at a time, both triangles tested at once: a walk is a chain of dependent loads (ref,
+ * then triangle), and the pair halves its links. The light's color.w carries the block's resolution
+ * and, from bit 16, the bits of a ref's triangle id. */
+RT_FN int light_visible_buffered(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Surface *s,
+                                 RT_CONST const RtLight *light)
+{
+    float3 light_pos = xyz(light->position);
+    int base = rt_as_int(light->position.w);
+    int shape = rt_as_int(light->color.w);
     float3 o = spawn_origin(s, sub3(light_pos, s->p));
     float3 w = sub3(o, light_pos);
-    int cell = base >= 0 ? light_buffer_cell(w, load_node_word(node_data, base)) : -1;
-    int first = 0, count = -1;
+    int cell = base >= 0 ? light_buffer_cell(w, shape & 0xffff) : -1;
+    int head = RT_LB_TO_TRAVERSAL;
     float blocked = RT_INF;
     if (cell >= 0) {
-        first = base + load_node_word(node_data, base + 1 + 3 * cell);
-        count = load_node_word(node_data, base + 2 + 3 * cell);
-        blocked = rt_as_float(load_node_word(node_data, base + 3 + 3 * cell));
+        head = load_node_word(node_data, base + RT_LB_HEADER_WORDS + RT_LB_CELL_WORDS * cell);
+        blocked = rt_as_float(load_node_word(node_data, base + RT_LB_HEADER_WORDS + RT_LB_CELL_WORDS * cell + 1));
     }
-    if (count < 0)
+    int count = head & RT_LB_TO_TRAVERSAL;
+    if (count == RT_LB_TO_TRAVERSAL)
         return light_visible(RT_SCENE_ARGS, frame, s, light_pos);
     float reach = rt_sqrt(dot3(w, w));
     if (reach > blocked)
         return 0;
+    int first = base + (int)((unsigned int)head >> RT_LB_COUNT_BITS);
+    int id_bits = shape >> 16;
+    int id_mask = (1 << id_bits) - 1;
     Ray shadow = make_ray(o, sub3(light_pos, o), 0.0f, 1.0f);
-    Hit hit = make_miss(1.0f);
-    for (int i = 0; i < count; ++i) {
-        int ref = first + 2 * i;
-        if (rt_as_float(load_node_word(node_data, ref + 1)) > reach)
+    for (int i = 0; i < count; i += 2) {
+        int near = load_node_word(node_data, first + i);
+        int far = load_node_word(node_data, first + rt_imin(i + 1, count - 1));
+        if (light_buffer_ref_distance(near, id_bits) > reach)
             break;
-        if (intersect_tri(RT_SCENE_ARGS, &shadow, load_node_word(node_data, ref), &hit))
+        int near_blocks = light_buffer_blocks(RT_SCENE_ARGS, &shadow, near & id_mask);
+        int far_blocks = light_buffer_blocks(RT_SCENE_ARGS, &shadow, far & id_mask);
+        if (near_blocks)
+            return 0;
+        if (i + 1 >= count || light_buffer_ref_distance(far, id_bits) > reach)
+            break;
+        if (far_blocks)
             return 0;
     }
     return 1;

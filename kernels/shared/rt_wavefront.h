@@ -26,6 +26,8 @@
 #define RT_WAVEFRONT_H
 #include "rt_whitted.h"
 
+#define RT_QUEUE_PENDING 2   /* q_count[2] of level 0's queue: the pixels listed in `pending` */
+
 /* Add colour c to a pixel that other rays of the same launch may also add to (rt_atomic_add_float:
  * rt_port.h). */
 RT_FN void add_rgb_atomic(RT_GLOBAL float4 *frame_rgb, int pixel, float3 c)
@@ -54,13 +56,14 @@ RT_FN int queue_slot(int i, int n_front, int q_cap)
 }
 
 /* A traced ray of level `level` (direction d, weight w, its hit): spawn its children into the
- * next queue (below RT_MAX_DEPTH), then shade it; returns weight x colour. Children first, so the
- * surface need not stay live across the shadow rays. */
+ * next queue (below RT_MAX_DEPTH), counted in *spawned, then shade it; returns weight x colour.
+ * Children first, so the surface need not stay live across the shadow rays. */
 RT_FN float3 shade_and_spawn(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
                              RT_CONST const RtMaterial *materials, int level, float3 d, float w, const Hit *hit,
                              int pixel, int path, RT_GLOBAL float4 *q_ow, RT_GLOBAL float4 *q_dp,
-                             RT_GLOBAL int *q_path, RT_GLOBAL int *q_count, int q_cap)
+                             RT_GLOBAL int *q_path, RT_GLOBAL int *q_count, int q_cap, int *spawned)
 {
+    *spawned = 0;
     if (hit->tri < 0)
         return mul3(xyz(frame->background), w);
     Surface s = surface_at(RT_SCENE_ARGS, d, hit);
@@ -68,23 +71,31 @@ RT_FN float3 shade_and_spawn(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_
         Ray child;
         float w_child;
 #if RT_REFLECTION
-        if (spawn_reflection(materials, d, w, &s, &child, &w_child))
+        if (spawn_reflection(materials, d, w, &s, &child, &w_child)) {
             queue_push(q_ow, q_dp, q_path, q_count, q_cap, RT_RAY_REFLECTION, &child, w_child, pixel, path);
+            ++*spawned;
+        }
 #endif
 #if RT_REFRACTION
-        if (spawn_refraction(materials, d, w, &s, &child, &w_child))
+        if (spawn_refraction(materials, d, w, &s, &child, &w_child)) {
             queue_push(q_ow, q_dp, q_path, q_count, q_cap, RT_RAY_REFRACTION, &child, w_child, pixel,
                        path | (1 << level));
+            ++*spawned;
+        }
 #endif
     }
     return mul3(shade_local(RT_SCENE_ARGS, frame, lights, materials, d, &s), w);
 }
 
-/* Level 0: the primary ray of pixel (x, y); its colour is the pixel's first term (a store). */
+/* Level 0: the primary ray of pixel (x, y). A pixel that spawns no child is done: its RGBA8 is
+ * stored here. One that does stores its colour as the float4 frame's first term and is listed in
+ * `pending` (count q_count[2]) for pack_pending, after the last level: the frame's float4 traffic and
+ * its packing are then only those of the pixels that secondary rays reach. */
 RT_FN void trace_wavefront_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, RT_CONST const RtLight *lights,
                                  RT_CONST const RtMaterial *materials, int x, int y, RT_GLOBAL float4 *frame_rgb,
-                                 RT_GLOBAL float4 *hits_out, RT_GLOBAL float4 *q_ow, RT_GLOBAL float4 *q_dp,
-                                 RT_GLOBAL int *q_path, RT_GLOBAL int *q_count, int q_cap)
+                                 RT_GLOBAL unsigned int *pixels, RT_GLOBAL int *pending, RT_GLOBAL float4 *hits_out,
+                                 RT_GLOBAL float4 *q_ow, RT_GLOBAL float4 *q_dp, RT_GLOBAL int *q_path,
+                                 RT_GLOBAL int *q_count, int q_cap)
 {
     int pixel = y * frame->width + x;
     Ray ray = camera_ray(frame, x, y);
@@ -93,9 +104,15 @@ RT_FN void trace_wavefront_pixel(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
 #if RT_WRITE_HITS
     hits_out[pixel] = pack_hit(hit);
 #endif
+    int spawned;
     float3 c = shade_and_spawn(RT_SCENE_ARGS, frame, lights, materials, 0, ray.d, 1.0f, &hit, pixel, 0, q_ow,
-                               q_dp, q_path, q_count, q_cap);
-    frame_rgb[pixel] = f4(c.x, c.y, c.z, 1.0f);
+                               q_dp, q_path, q_count, q_cap, &spawned);
+    if (spawned) {
+        frame_rgb[pixel] = f4(c.x, c.y, c.z, 1.0f);
+        pending[rt_atomic_inc(&q_count[RT_QUEUE_PENDING])] = pixel;
+    } else {
+        pixels[pixel] = pack_rgba8(c);
+    }
 }
 
 /* Level >= 1: thread i traces ray i of the level's queue and adds its colour to its pixel. */
@@ -116,8 +133,9 @@ RT_FN void trace_wavefront_ray(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, R
 #if RT_WRITE_HITS
     hits_out[i] = pack_hit(hit);
 #endif
+    int spawned;
     float3 c = shade_and_spawn(RT_SCENE_ARGS, frame, lights, materials, level, ray.d, ow.w, &hit, pixel,
-                               in_path[slot], q_ow, q_dp, q_path, q_count, q_cap);
+                               in_path[slot], q_ow, q_dp, q_path, q_count, q_cap, &spawned);
     add_rgb_atomic(frame_rgb, pixel, c);
 }
 

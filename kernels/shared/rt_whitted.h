@@ -127,7 +127,7 @@ RT_FN unsigned int lights_reaching(RT_SCENE_PARAMS, RT_CONST const RtFrame *fram
         if (dot3(s->ns, to_light) <= 0.0f || dot3(s->ng, to_light) <= 0.0f)
             continue;
 #if RT_SHADOWS && RT_LIGHT_BUFFER
-        if (!light_visible_buffered(RT_SCENE_ARGS, frame, s, lights[i].position))
+        if (!light_visible_buffered(RT_SCENE_ARGS, frame, s, &lights[i]))
             continue;
 #elif RT_SHADOWS
         if (!light_visible(RT_SCENE_ARGS, frame, s, xyz(lights[i].position)))

@@ -14,15 +14,18 @@ kernel's cell lookup and of its ray), its clipped projection's bounding box over
 to the light is stored rounded down by DISTANCE_MARGIN. A cell whose list would pass MAX_LIST
 triangles stores none and sends its rays to the traversal.
 
-Layout, int32 words (rtlab.device.device_scene appends a light's block to the traversal's node_data,
-and the light's position.w carries the block's first word):
-    [0]                         the resolution R (cells a face edge)
-    [1 + 3 c] .. [3 + 3 c]      cell c = face * R * R + row * R + col: its first ref (a word offset
-                                from the block's start), its count (-1: "ask the traversal"), and the
+Layout, int32 words (the constants are kernels/shared/rt_light_buffer.h's; rtlab.device.device_scene
+appends a light's block to the traversal's node_data, the light's position.w carries the block's first
+word and its color.w the resolution and, from bit 16, the id bits):
+    [0] [1]                     the resolution R (cells a face edge); the bits of a ref's triangle id
+    [2] [3]                     zero
+    [4 + 2 c] [5 + 2 c]         cell c = face * R * R + row * R + col: its first ref (a word of the block)
+                                above its count's COUNT_BITS (TO_TRAVERSAL: "ask the traversal"); the
                                 distance from the light beyond which its rays are blocked (float bits,
-                                inf for none): a triangle crosses every ray of the cone there
-    refs                        two words each: the triangle id and its distance to the light (float bits);
-                                a list holds only triangles nearer than its cell's blocking distance
+                                inf for none: a triangle crosses every ray of the cone there)
+    refs                        one word each: the triangle id in the low id bits, above it its distance
+                                to the light (the float's bits truncated, so never above it); a list holds
+                                only triangles nearer than its cell's blocking distance
 Faces: 2 * axis + (0 for +axis, 1 for -axis); col along axis + 1, row along axis + 2 (mod 3), each
 from (w_u / |w_axis| + 1) R / 2 with w = point - light.
 """
@@ -32,14 +35,21 @@ import numpy as np
 
 from ..geometry import moller_trumbore_t
 from ..jit import njit, prange
+from ..kernel_constants import kernel_constant
 
 CONE_MARGIN = 1e-4          # widening of a cell's cone, in its face's (u, v) coordinates (-1..1)
 DISTANCE_MARGIN = 1e-5      # stored distances are rounded down by this relative amount
-MAX_LIST = 64               # a longer list is dropped: its rays take the traversal
+MAX_LIST = 126              # a longer list is dropped: its rays take the traversal (below TO_TRAVERSAL)
 COVER_MARGIN = 1e-6         # a triangle blocks a cell where its cone corners cross it this far inside
 FULL_MARGIN = 1e-4          # ... and only past its distance there, raised by this relative amount
-RESOLUTIONS = (256, 128, 64, 32)
-MAX_WORDS = 16 << 20        # a light's block at most 64 MiB: the finest resolution that fits
+RESOLUTIONS = (512, 256, 128, 64, 32)
+MAX_WORDS = 24 << 20        # a light's block at most 96 MiB: the finest resolution that fits
+# the block's layout, from kernels/shared/rt_light_buffer.h (the module docstring says what it means)
+HEADER_WORDS = kernel_constant("RT_LB_HEADER_WORDS")
+CELL_WORDS = kernel_constant("RT_LB_CELL_WORDS")
+COUNT_BITS = kernel_constant("RT_LB_COUNT_BITS")
+TO_TRAVERSAL = kernel_constant("RT_LB_TO_TRAVERSAL")
+MAX_ID_BITS = 24            # a ref keeps at least 8 bits of its distance (the float's exponent)
 
 
 @njit(cache=True)
@@ -194,7 +204,7 @@ def _shrunk(v):
 # Why many parameters: one numba pass over the triangles takes the geometry, its order and per-triangle
 # figures made in numpy beforehand, and the build's settings, as arrays and scalars (no objects in nopython).
 @njit(cache=True)
-def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, max_list):
+def _fill(vertices, faces, order, per_triangle, light, res, exact, refs, max_list):
     n_cells = 6 * res * res
     cells = np.empty(max(per_triangle.max(), 1), np.int64)
     v = np.empty((3, 3))
@@ -217,20 +227,19 @@ def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, ma
             if exact[i] <= full[cells[j]]:
                 counts[cells[j]] += 1
     kept = counts <= max_list
-    header = 1 + 3 * n_cells
-    words = np.empty(header + 2 * (counts * kept).sum(), np.int32)
+    header = HEADER_WORDS + CELL_WORDS * n_cells
+    words = np.zeros(header + (counts * kept).sum(), np.int32)
     words[0] = res
     full32 = np.minimum(full, 3.0e38).astype(np.float32)
     full_bits = np.where(full < 3.0e38, full32.view(np.int32), np.int32(0x7F800000))
     at = header
     fill = np.empty(n_cells, np.int64)
     for c in range(n_cells):
-        words[1 + 3 * c] = at
-        words[2 + 3 * c] = counts[c] if kept[c] else -1
-        words[3 + 3 * c] = full_bits[c]
+        words[HEADER_WORDS + CELL_WORDS * c] = (at << COUNT_BITS) | (counts[c] if kept[c] else TO_TRAVERSAL)
+        words[HEADER_WORDS + CELL_WORDS * c + 1] = full_bits[c]
         fill[c] = at
         if kept[c]:
-            at += 2 * counts[c]
+            at += counts[c]
     for i in order:
         for k in range(3):
             v[k] = vertices[faces[i, k]]
@@ -238,15 +247,17 @@ def _fill(vertices, faces, order, per_triangle, light, res, exact, dist_bits, ma
         for j in range(m):
             c = cells[j]
             if kept[c] and exact[i] <= full[c]:
-                words[fill[c]] = i
-                words[fill[c] + 1] = dist_bits[i]
-                fill[c] += 2
+                words[fill[c]] = refs[i]
+                fill[c] += 1
     return words
 
 
 def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np.ndarray | None:
     """A point light's block of int32 words (the layout above) at the finest of RESOLUTIONS that fits
     max_words, or None when none does."""
+    if not MAX_LIST < TO_TRAVERSAL:
+        raise ValueError(f"light buffer lists of {MAX_LIST} refs: a count must stay below {TO_TRAVERSAL}")
+    max_words = min(max_words, 1 << (32 - COUNT_BITS))      # a cell's first ref fits above its count
     v = np.asarray(vertices, np.float64)
     f = np.ascontiguousarray(faces, np.int64)
     p = np.asarray(light, np.float64)
@@ -255,21 +266,46 @@ def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np
     distances = (exact * (1.0 - DISTANCE_MARGIN)).astype(np.float32)
     distances = np.where(distances > exact, np.nextafter(distances, np.float32(0)), distances).astype(np.float32)
     order = np.argsort(exact, kind="stable")
+    id_bits = max(int(len(f) - 1).bit_length(), 1)
+    if id_bits > MAX_ID_BITS:
+        return None
+    # a ref: the triangle id in the low id_bits, above it the distance's float bits truncated (rounded down)
+    code = distances.view(np.uint32).astype(np.uint64) >> np.uint64(id_bits - 1)
+    refs = ((code << np.uint64(id_bits)) | np.arange(len(f), dtype=np.uint64)).astype(np.uint32).view(np.int32)
     for res in RESOLUTIONS:
         per_triangle = _cells_per_triangle(v, f, p, res)
-        if 1 + 18 * res * res + 2 * int(per_triangle.sum()) <= max_words or res == RESOLUTIONS[-1]:
-            words = _fill(v, f, order, per_triangle, p, res, exact, distances.view(np.int32), MAX_LIST)
+        if HEADER_WORDS + 6 * CELL_WORDS * res * res <= max_words or res == RESOLUTIONS[-1]:
+            words = _fill(v, f, order, per_triangle, p, res, exact, refs, MAX_LIST)
+            words[1] = id_bits
             if len(words) <= max_words:
                 return words
     return None
 
 
+def cell_records(words: np.ndarray) -> np.ndarray:
+    """The block's cells, (6 R², 3) int64: first ref (a word of the block), count (-1: the traversal),
+    blocking distance bits."""
+    res = int(words[0])
+    raw = words[HEADER_WORDS:HEADER_WORDS + 6 * CELL_WORDS * res * res].reshape(-1, CELL_WORDS).astype(np.int64)
+    count = raw[:, 0] & TO_TRAVERSAL
+    return np.stack([raw[:, 0] >> COUNT_BITS, np.where(count == TO_TRAVERSAL, -1, count), raw[:, 1]], axis=1)
+
+
+def decode_refs(words: np.ndarray, at: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle ids and the distances (float32, never above the true ones) of refs words[at:at+count]."""
+    id_bits = int(words[1])
+    raw = words[at:at + count].view(np.uint32)
+    ids = (raw & np.uint32((1 << id_bits) - 1)).astype(np.int64)
+    dist = ((raw >> np.uint32(id_bits)) << np.uint32(id_bits - 1)).view(np.float32)
+    return ids, dist
+
+
 def light_buffer_stats(words: np.ndarray) -> dict:
     """Resolution, cells, the traversal's share of cells, mean list length, MiB."""
     res = int(words[0])
-    cells = words[1:1 + 18 * res * res].reshape(-1, 3)
+    cells = cell_records(words)
     kept = cells[cells[:, 1] >= 0, 1]
-    blocked = np.isfinite(cells[:, 2].view(np.float32))
+    blocked = np.isfinite(cells[:, 2].astype(np.int32).view(np.float32))
     return {"resolution": res, "cells": len(cells), "cells_to_traversal": int((cells[:, 1] < 0).sum()),
             "cells_blocked_beyond": int(blocked.sum()), "mean_list": float(kept.mean()) if kept.size else 0.0,
             "mib": words.nbytes / 2**20}

@@ -131,7 +131,7 @@ def section_table4(ctx) -> SectionResult:
 
 
 def section_table5(ctx) -> SectionResult:
-    from .shadows_bounces import bench_bounces, bench_shadows, table5_markdown
+    from .shadows_bounces import PACK_KERNELS, bench_bounces, bench_shadows, table5_markdown
     rows = []
     for name in [s for s in ctx.scenes if s in ("bunny", "sponza", "kitchen")]:
         for mode in ("one-pass", "two-pass"):
@@ -145,8 +145,8 @@ def section_table5(ctx) -> SectionResult:
                                       check_size=128 if ctx.check else 0))
     paper_rows = []
     for r in rows:
-        regs = [k.get("registers") for n, k in r.kernels.items() if n != "pack_frame" and k.get("registers")]
-        occs = [k.get("occupancy") for n, k in r.kernels.items() if n != "pack_frame" and k.get("occupancy") is not None]
+        regs = [k.get("registers") for n, k in r.kernels.items() if n not in PACK_KERNELS and k.get("registers")]
+        occs = [k.get("occupancy") for n, k in r.kernels.items() if n not in PACK_KERNELS and k.get("occupancy") is not None]
         paper = r.paper_fps if r.size == PAPER_SIZE else None
         mrays = r.rays / (r.median_ms * 1e-3) / 1e6 if r.median_ms else math.nan
         paper_rows.append(PaperRow(f"table5-{r.table}", r.scene, r.mode, r.backend, r.device, r.size, r.median_ms,

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..device.kernels import Variant, kernel_source
 from ..device.whitted import WhittedResult, render_whitted
+from ..device.whitted_frames import PACK_KERNELS
 from ..scene.materials import apply_materials
 from ..scene.model import Scene
 from .paper_figures import PAPER_BOUNCE_FPS, PAPER_SHADOW_FPS, PAPER_TABLE5_OCCUPANCY, PAPER_TABLE5_REGISTERS
@@ -75,11 +76,11 @@ class ShadingRow:
 
     def regs_text(self) -> str:
         return "/".join(str(k["registers"]) if k.get("registers") is not None else "-"
-                        for name, k in self.kernels.items() if name != "pack_frame")
+                        for name, k in self.kernels.items() if name not in PACK_KERNELS)
 
     def occupancy_text(self) -> str:
         return "/".join(f"{k['occupancy']:.0%}" if k.get("occupancy") is not None else "-"
-                        for name, k in self.kernels.items() if name != "pack_frame")
+                        for name, k in self.kernels.items() if name not in PACK_KERNELS)
 
     def error_text(self) -> str:
         e = self.error

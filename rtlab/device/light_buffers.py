@@ -5,7 +5,7 @@ A frame takes them (RT_LIGHT_BUFFER) where it traces shadow rays with the librar
 in global memory: the labs' programs and the paper's kd-tree variants keep the paper's shadow rays
 through the traversal (Table 5), and a counting or texture build keeps the loaders it was made for.
 Each light's block is appended to the traversal's node_data, built once per tree and light positions
-and kept with the uploaded scene; the light's position.w carries the block's first word.
+and kept with the uploaded scene; the light's position.w carries the block's first word, its color.w the block's resolution and its refs' id bits.
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def light_buffer_defines(variant, shadows: int, lab: bool) -> dict:
 
 def light_buffer_args(ds, variant, lab: bool = False) -> tuple[list, np.ndarray, dict]:
     """``ds.scene_args(variant)`` with node_data followed by each light's block, the lights' constants
-    with their blocks' first words, and what the blocks are (resolution, MiB, build seconds)."""
+    with their blocks' first words and resolutions, and what the blocks are (resolution, MiB, build seconds)."""
     if not takes_light_buffer(variant, lab):
         raise RtlabError(f"light buffers need the library's programs on a BVH in global memory, not "
                          f"{variant.label()}{' (lab)' if lab else ''}")
@@ -44,10 +44,11 @@ def light_buffer_args(ds, variant, lab: bool = False) -> tuple[list, np.ndarray,
     if made is None or made[0] is not ds.accel[family][0]:
         made = _make(ds, ds.accel[family][0], key[1])
         ds.light_buffers[key] = made
-    _, node_data, bases, info = made
+    _, node_data, blocks, info = made
     args[1] = node_data.buffer
     lights = light_constants(ds.scene)
-    lights["position"][:len(bases), 3] = bases.astype(np.int32).view(np.float32)
+    lights["position"][:len(blocks), 3] = blocks[:, 0].astype(np.int32).view(np.float32)
+    lights["color"][:len(blocks), 3] = blocks[:, 1].astype(np.int32).view(np.float32)    # resolution | id bits << 16
     return args, lights, info
 
 
@@ -55,10 +56,10 @@ def _make(ds, arrays, positions) -> tuple:
     t0 = time.perf_counter()
     words = [np.ascontiguousarray(arrays.node_data, np.float32).view(np.int32).ravel()]
     at = words[0].size
-    bases, blocks = [], []
+    bases, blocks = [], []          # per light: (the block's first word, its resolution), (-1, 0) for none
     for position in positions:
         block = build_light_buffer(ds.scene.vertices, ds.scene.faces, position, light_buffer.MAX_WORDS)
-        bases.append(-1 if block is None else at)
+        bases.append((-1, 0) if block is None else (at, int(block[0]) | int(block[1]) << 16))
         if block is not None:
             words.append(block)
             at += block.size
@@ -66,4 +67,4 @@ def _make(ds, arrays, positions) -> tuple:
     words.append(np.zeros(-at % 4, np.int32))
     rows = np.concatenate(words).view(np.float32).reshape(-1, 4)
     info = {"lights": blocks, "build_s": time.perf_counter() - t0}
-    return arrays, DeviceArray(ds.backend.to_device(rows), len(rows)), np.asarray(bases, np.int64), info
+    return arrays, DeviceArray(ds.backend.to_device(rows), len(rows)), np.asarray(bases, np.int64).reshape(-1, 2), info

@@ -43,7 +43,7 @@ from .device_scene import device_scene
 from .light_buffers import light_buffer_args, light_buffer_defines
 from .tracing import TraceResult, require_scene
 from .variants import LAB_PROGRAMS, Variant, program_for, resolve_variant
-from .whitted_frames import FRAME_RUNNERS, NO_RAY, Launch  # noqa: F401  (NO_RAY: in a result's tree)
+from .whitted_frames import FRAME_RUNNERS, NO_RAY, PACK_KERNELS, Launch  # noqa: F401  (NO_RAY: in a result's tree)
 
 SHADOWS_STEP = LAB_PROGRAMS["shadows"]       # the lab steps of the shadow kernels and the kernel tree
 TREE_STEP = LAB_PROGRAMS["bounces"]
@@ -91,7 +91,7 @@ class WhittedResult:
 
     def rays_launched(self) -> int:
         """Threads of the tracing kernels (shading-only and packing launches left out)."""
-        return sum(launch.rays for launch in self.launches if launch.kernel not in ("pack_frame", "shade_records"))
+        return sum(launch.rays for launch in self.launches if launch.kernel not in PACK_KERNELS + ("shade_records",))
 
 
 def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact: bool = False,

@@ -19,6 +19,8 @@ from .tracing import unpack_hits
 NO_RAY = int(kernel_constant("RT_NO_RAY"))      # tri of a tree node whose ray was not spawned
 KINDS = (("R", "trace_reflection", "RT_REFLECTION"), ("T", "trace_refraction", "RT_REFRACTION"))
 CONSTANTS = ("frame", "lights", "materials")
+PACK_KERNELS = ("pack_frame", "pack_pending")     # the float4 frame to RGBA8: no rays
+PACK_BLOCK = (256,)     # a packing launch reads a float4 and writes a word a pixel: larger blocks stream it faster
 
 
 @dataclass
@@ -171,7 +173,7 @@ class TreeFrame(Frame):
                                  self.args + [self.frame_rgb] + self._out(0), constants=CONSTANTS)
         launches.append(Launch("trace_primary_tree", "P", 0, self.n, ms))
         self._descend(1, "P", self._after_node("P", 0, launches), launches)
-        ms = self.program.launch("pack_frame", (self.n,), self.block1d, [self.frame_rgb, self.pixels, np.int32(self.n)])
+        ms = self.program.launch("pack_frame", (self.n,), PACK_BLOCK, [self.frame_rgb, self.pixels, np.int32(self.n)])
         launches.append(Launch("pack_frame", "", 0, self.n, ms))
         return launches
 
@@ -197,7 +199,8 @@ class TreeFrame(Frame):
 
 @dataclass
 class _Queue:
-    """A ray queue of rt_wavefront.h: (origin, weight), (direction, pixel), path, two counts."""
+    """A ray queue of rt_wavefront.h: (origin, weight), (direction, pixel), path, counts (reflection,
+    refraction, and in level 0's queue the pending pixels)."""
     ow: object
     dp: object
     path: object
@@ -208,7 +211,8 @@ class _Queue:
 class WavefrontFrame(Frame):
     """The tree's rays level by level (kernels/shared/rt_wavefront.h): one launch per level over the
     queue the level above filled. Two queues, the one read and the one filled, alternate; each is
-    grown to twice the rays of the level that fills it (a ray appends at most two children)."""
+    grown to twice the rays of the level that fills it (a ray appends at most two children). Level 0
+    packs the pixels that spawn no child; pack_pending packs the others after the last level."""
 
     PIXEL_KERNELS = ("trace_wavefront_primary",)
 
@@ -219,12 +223,13 @@ class WavefrontFrame(Frame):
         self.hits_cap = self.n if write_hits else 1
         self.hits = backend.empty(16 * self.hits_cap)
         self.queues = [self._queue(2 * self.n if self.depth > 0 else 1) for _ in range(2)]
-        self.zero = np.zeros(2, np.int32)
+        self.pending = backend.empty(4 * self.n if self.depth > 0 else 4)
+        self.zero = np.zeros(4, np.int32)
         self.primary_records = None
 
     def _queue(self, cap: int) -> _Queue:
         b = self.backend
-        return _Queue(b.empty(16 * cap), b.empty(16 * cap), b.empty(4 * cap), b.empty(8), cap)
+        return _Queue(b.empty(16 * cap), b.empty(16 * cap), b.empty(4 * cap), b.empty(16), cap)
 
     def _filled(self, index: int, need: int) -> _Queue:
         """Queue ``index``, emptied and grown to hold ``need`` rays, for the next launch to fill."""
@@ -237,20 +242,23 @@ class WavefrontFrame(Frame):
         return [q.ow, q.dp, q.path, q.count, np.int32(q.cap)]
 
     def kernels(self) -> list[str]:
-        return ["trace_wavefront_primary"] + (["trace_wavefront"] if self.depth > 0 else []) + ["pack_frame"]
+        return ["trace_wavefront_primary"] + (["trace_wavefront", "pack_pending"] if self.depth > 0 else [])
 
     def frame(self) -> list[Launch]:
         launches: list[Launch] = []
         self.tree = {} if self.write_hits else None
         out = self._filled(0, 2 * self.n if self.depth > 0 else 0)
         ms = self.program.launch("trace_wavefront_primary", (self.camera.width, self.camera.height), self.block2d,
-                                 self.args + [self.frame_rgb, self.hits] + self._queue_args(out), constants=CONSTANTS)
+                                 self.args + [self.frame_rgb, self.pixels, self.pending, self.hits]
+                                 + self._queue_args(out), constants=CONSTANTS)
         launches.append(Launch("trace_wavefront_primary", "P", 0, self.n, ms))
         if self.tree is not None:
             self._record_level(0, None, 0, 0)
+        pending = 0
         for level in range(1, self.depth + 1):
             src = self.queues[(level - 1) % 2]
-            front, back = (int(c) for c in self.backend.to_host(src.count, np.int32, 2))
+            front, back, level0_pending = (int(c) for c in self.backend.to_host(src.count, np.int32, 3))
+            pending = level0_pending if level == 1 else pending
             rays = front + back
             if rays == 0:
                 break
@@ -264,8 +272,10 @@ class WavefrontFrame(Frame):
             launches.append(Launch("trace_wavefront", "P" + "*" * level, level, rays, ms))
             if self.tree is not None:
                 self._record_level(level, src, front, back)
-        ms = self.program.launch("pack_frame", (self.n,), self.block1d, [self.frame_rgb, self.pixels, np.int32(self.n)])
-        launches.append(Launch("pack_frame", "", 0, self.n, ms))
+        if pending:
+            ms = self.program.launch("pack_pending", (pending,), PACK_BLOCK,
+                                     [self.frame_rgb, self.pending, self.pixels, np.int32(pending)])
+            launches.append(Launch("pack_pending", "", 0, pending, ms))
         return launches
 
     def _record_level(self, level: int, src: _Queue | None, front: int, back: int) -> None:
