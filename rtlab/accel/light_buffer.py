@@ -286,7 +286,8 @@ def cell_records(words: np.ndarray) -> np.ndarray:
     """The block's cells, (6 R², 3) int64: first ref (a word of the block), count (-1: the traversal),
     blocking distance bits."""
     res = int(words[0])
-    raw = words[HEADER_WORDS:HEADER_WORDS + 6 * CELL_WORDS * res * res].reshape(-1, CELL_WORDS).astype(np.int64)
+    raw = words[HEADER_WORDS:HEADER_WORDS + 6 * CELL_WORDS * res * res].view(np.uint32).astype(np.int64)
+    raw = raw.reshape(-1, CELL_WORDS)          # unsigned: a first ref past 2^24 fills the word's sign bit
     count = raw[:, 0] & TO_TRAVERSAL
     return np.stack([raw[:, 0] >> COUNT_BITS, np.where(count == TO_TRAVERSAL, -1, count), raw[:, 1]], axis=1)
 
