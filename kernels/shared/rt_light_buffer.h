@@ -42,8 +42,8 @@ RT_FN int light_buffer_blocks(RT_SCENE_PARAMS, const Ray *shadow, int tri)
     return intersect_tri(RT_SCENE_ARGS, shadow, tri, &hit);
 }
 
-/* Ref k of a list: the triangle id in the low id_bits, above it its distance to the light, the float's
- * bits truncated (never above the true distance). */
+/* The distance to the light a ref carries above its id_bits of triangle id: the float's bits
+ * truncated, so never above the true distance. */
 RT_FN float light_buffer_ref_distance(int ref, int id_bits)
 {
     return rt_as_float((int)(((unsigned int)ref >> id_bits) << (id_bits - 1)));
