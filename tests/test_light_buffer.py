@@ -18,6 +18,8 @@ from rtlab.scene.procedural import default_scene, with_secondary_materials
 
 from .conftest import require_scene_file
 
+BVH = Variant(traversal="bvh")      # a traversal whose frames take light buffers on every device
+
 
 def _segment_blocked(o, light, tris):
     """Brute force, float64: whether segment o -> light crosses any triangle (Moller-Trumbore, t in (0, 1))."""
@@ -126,8 +128,8 @@ def _sponza(size):
                          ids=["wavefront", "tree", "two-pass", "one-pass"])
 def test_frames_equal_the_traversals(backend, mode):
     for scene in (with_secondary_materials(default_scene(64)), _sponza(64)):
-        buffered = render_whitted(scene, backend, **mode)
-        traversed = render_whitted(scene, backend, defines={"RT_LIGHT_BUFFER": 0}, **mode)
+        buffered = render_whitted(scene, backend, BVH, **mode)
+        traversed = render_whitted(scene, backend, BVH, defines={"RT_LIGHT_BUFFER": 0}, **mode)
         assert buffered.defines.get("RT_LIGHT_BUFFER") == 1 and buffered.light_buffer["lights"]
         assert "RT_LIGHT_BUFFER" not in traversed.defines or traversed.defines["RT_LIGHT_BUFFER"] == 0
         np.testing.assert_array_equal(buffered.image, traversed.image)
@@ -136,11 +138,22 @@ def test_frames_equal_the_traversals(backend, mode):
 def test_a_light_without_a_block_takes_the_traversal(backend, monkeypatch):
     scene = _sponza(48)
     monkeypatch.setattr(light_buffer, "MAX_WORDS", 1000)
-    buffered = render_whitted(scene, backend, bounces=2)
+    buffered = render_whitted(scene, backend, BVH, bounces=2)
     assert buffered.defines.get("RT_LIGHT_BUFFER") == 1 and buffered.light_buffer["lights"] == []
     monkeypatch.undo()
-    np.testing.assert_array_equal(buffered.image, render_whitted(scene, backend, bounces=2,
+    np.testing.assert_array_equal(buffered.image, render_whitted(scene, backend, BVH, bounces=2,
                                                                  defines={"RT_LIGHT_BUFFER": 0}).image)
+
+
+def test_the_cpus_lane_traversals_keep_the_traversal(backend):
+    """bvh-wide and bvh-packet (the CPU default) walk shadow rays in SIMD lanes, faster on PoCL than a
+    list walked a ref at a time: their frames take no buffer, and the backend's default frame is the
+    buffer's or the traversal's as its variant says."""
+    for traversal in ("bvh-wide", "bvh-packet"):
+        assert light_buffer_defines(Variant.paper(traversal=traversal), 1, lab=False) == {}
+    frame = render_whitted(with_secondary_materials(default_scene(32)), backend, bounces=1)
+    takes = not frame.variant.spec.lanes
+    assert bool(frame.defines.get("RT_LIGHT_BUFFER")) == takes and (frame.light_buffer is not None) == takes
 
 
 def test_the_papers_shadow_rays_keep_the_traversal(backend):

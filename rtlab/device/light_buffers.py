@@ -2,8 +2,11 @@
 library's frame kernels: which frames take them, and the buffers they read.
 
 A frame takes them (RT_LIGHT_BUFFER) where it traces shadow rays with the library's programs on a BVH
-in global memory: the labs' programs and the paper's kd-tree variants keep the paper's shadow rays
-through the traversal (Table 5), and a counting or texture build keeps the loaders it was made for.
+in global memory, one ray a thread: the labs' programs and the paper's kd-tree variants keep the paper's
+shadow rays through the traversal (Table 5), and a counting or texture build keeps the loaders it was
+made for. The CPU's traversals in SIMD lanes (bvh-wide, bvh-packet: the CPU default) keep them too: on
+PoCL their shadow rays walk the wide BVH faster than a list is walked a ref at a time
+(docs/results.md, "Shadow rays through a light buffer").
 Each light's block is appended to the traversal's node_data, built once per tree and light positions
 and kept with the uploaded scene; the light's position.w carries the block's first word, its color.w the block's resolution and its refs' id bits.
 """
@@ -21,7 +24,7 @@ from .device_scene import KD_FAMILIES, DeviceArray, accel_family, light_constant
 
 def takes_light_buffer(variant, lab: bool) -> bool:
     """Whether shadow rays of ``variant``'s frames may go through light buffers (see the module docstring)."""
-    return (not lab and variant.node_memory == "global" and not variant.count_work
+    return (not lab and variant.node_memory == "global" and not variant.count_work and not variant.spec.lanes
             and accel_family(variant.traversal) not in KD_FAMILIES)
 
 
