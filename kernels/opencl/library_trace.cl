@@ -4,5 +4,6 @@
 // lab file never changes the library. OpenCL: constants are __constant arguments, last.
 #define RT_FETCH_KERNEL 1              // trace_rays_fetch: rays taken as lanes free up (rt_bvh.h)
 #include "rt_entry_trace.h"      // trace_rays, render_primary, trace_rays_fetch
-#include "rt_entry_ray_grid.h"   // trace_ray_grid
+#define RT_ORDERED_GRID_KERNEL 1       // trace_ray_grid_ordered: the costliest tiles first (tile_orders.py)
+#include "rt_entry_ray_grid.h"   // trace_ray_grid, trace_ray_grid_ordered
 #include "rt_entry_loop.h"       // trace_rays_loop (and intersect_triangles)

@@ -172,7 +172,10 @@ def bench_rays(batch: RayBatch, backend, variant: Variant, repeats: int = 22, wa
     result = trace(batch.scene, batch.origins, batch.directions, backend, variant, repeats=repeats, warmup=warmup,
                    width=width)
     error = batch.error(result.tri, result.t)
-    row = RaysRow(batch.view, batch.kind, batch.size, backend.name, backend.device_name, variant.label(), batch.n,
+    label = variant.label()
+    if result.tile_order is not None:     # camera rays launched costliest tiles first: what ordering took
+        label += f", costly tiles first (ordered in {result.tile_order.build_seconds * 1e3:.0f} ms)"
+    row = RaysRow(batch.view, batch.kind, batch.size, backend.name, backend.device_name, label, batch.n,
                   result.kernel_ms, batch.n / (result.kernel_ms * 1e-3) / 1e6,
                   (float(min(result.launches_ms)), float(max(result.launches_ms))), error,
                   peer=peer_figures().get((batch.view, batch.kind, batch.size)))

@@ -258,6 +258,7 @@ class DeviceScene:
     max_material_id: int = 0                        # checked against the scene's materials each use
     work: tuple | None = None                       # (buffer, work-items) of a counting build's counters
     light_buffers: dict = field(default_factory=dict)  # (family, light positions) -> rtlab.device.light_buffers
+    tile_orders: dict = field(default_factory=dict)    # (camera, image, block) -> rtlab.device.tile_orders
     fingerprint: bytes = b""                        # scene_fingerprint at upload
 
     @classmethod

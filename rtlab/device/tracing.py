@@ -12,10 +12,11 @@ import numpy as np
 
 from ..backends import get_backend
 from ..errors import RtlabError
-from ..scene.model import Scene, image_width_of
+from ..scene.model import Scene, image_camera_of, image_width_of
 from .kernels import TRACE_THREADS, load_program, rays_per_work_item
 from .layout import HIT_DTYPE, float4_rows
 from .device_scene import device_scene
+from .tile_orders import orders_tiles, tile_order
 from .variants import (CPU_DEFAULT_VARIANT, GPU_DEFAULT_VARIANT, GPU_RAYS_VARIANT,  # noqa: F401
                        SCALAR_CPU_VARIANT, Variant, default_variant, program_for, resolve_variant)
 
@@ -55,6 +56,7 @@ class TraceResult:
     backend: str = ""
     device: str = ""
     launches_ms: tuple = ()   # each timed launch's device time (``repeats`` of trace())
+    tile_order: object = None  # camera rays' rtlab.device.tile_orders.TileOrder, where trace() made one
 
     @property
     def hit(self) -> np.ndarray:
@@ -253,6 +255,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     (rtlab.device.variants.program_for) instead of the library's: the grader, the paper's benches."""
     scene = require_scene(scene)
     implied_width = image_width_of(directions, origins) if width is None else None
+    camera = image_camera_of(directions, origins)
     origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")
     if origins.shape != directions.shape:
         raise RtlabError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
@@ -285,8 +288,12 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     if program.defines.get("RT_TRACE_THREADS") != TRACE_BLOCK:    # it sizes the kernel's block-wide ray array
         raise RtlabError(f"{name} was compiled for trace_rays blocks of {program.defines.get('RT_TRACE_THREADS')} "
                          f"threads, launched with {TRACE_BLOCK}")
+    order = None
+    if width and lanes == 1 and camera is not None and (camera.width, camera.height) == (int(width), n // int(width)) \
+            and orders_tiles(backend, variant, name):
+        order = tile_order(ds, camera, camera.width, camera.height, variant.block)
     if width and lanes == 1:
-        launch = _grid_launch(program, name, ds, variant, n, width, (o_buf, d_buf, h_buf))
+        launch = _grid_launch(program, name, ds, variant, n, width, (o_buf, d_buf, h_buf), order)
     elif fetches_rays(backend, variant, name):
         launch = _fetch_launch(backend, program, ds, variant, n, (o_buf, d_buf, h_buf))
     else:
@@ -296,7 +303,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
     t = _t_in_caller_units(t, scale)
-    return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times))
+    return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times),
+                       tile_order=order)
 
 
 GRID_PROGRAMS = ("library_trace", "00_primary")     # the programs that hold trace_ray_grid
@@ -329,8 +337,9 @@ def _fetch_launch(backend, program, ds, variant: Variant, n: int, buffers):
     return launch
 
 
-def _grid_launch(program, name: str, ds, variant: Variant, n: int, width: int, buffers):
-    """The launch of trace_ray_grid over rays laid out as rows of ``width`` (trace's ``width``)."""
+def _grid_launch(program, name: str, ds, variant: Variant, n: int, width: int, buffers, order=None):
+    """The launch of trace_ray_grid over rays laid out as rows of ``width`` (trace's ``width``), or of
+    trace_ray_grid_ordered with the tiles of ``order`` (rtlab.device.tile_orders) where it orders them."""
     width = int(width)
     if width <= 0 or n % width:
         raise RtlabError(f"width={width}: {n} rays do not form rows of that many")
@@ -339,4 +348,7 @@ def _grid_launch(program, name: str, ds, variant: Variant, n: int, width: int, b
                          f"{name}'s, which trace a plain list of rays")
     height = n // width
     args = ds.scene_args(variant) + list(buffers) + [np.int32(width), np.int32(height)]
+    if order is not None:
+        return lambda: program.launch("trace_ray_grid_ordered", (width, height), variant.block, args + [order.tiles],
+                                      constants=("frame",))
     return lambda: program.launch("trace_ray_grid", (width, height), variant.block, args, constants=("frame",))

@@ -255,12 +255,16 @@ class CameraRays(np.ndarray):
     rtlab.trace takes such rays in tiles without being told ``width=`` (a warp then traces
     neighbouring pixels). Otherwise a plain ndarray. Only what is still the whole image keeps the
     width (a copy, a view of the same shape): arithmetic (``o + t * d``) and a subset give plain
-    arrays, which trace() takes in the order given. The hits are the same either way."""
+    arrays, which trace() takes in the order given. The hits are the same either way. They also carry
+    their ``camera``, from which trace() may launch a GPU's costliest tiles first (rtlab.device.tile_orders):
+    that steers the launch order only, never the hits."""
     image_width: int | None
+    camera: "Camera | None"
 
     def __array_finalize__(self, obj):
         same = obj is not None and getattr(obj, "shape", None) == self.shape
         self.image_width = getattr(obj, "image_width", None) if same else None
+        self.camera = getattr(obj, "camera", None) if same else None
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         plain = [x.view(np.ndarray) if isinstance(x, CameraRays) else x for x in inputs]
@@ -275,6 +279,15 @@ def image_width_of(*arrays) -> int | None:
         w = getattr(a, "image_width", None)
         if w:
             return int(w)
+    return None
+
+
+def image_camera_of(*arrays) -> "Camera | None":
+    """The camera the first of ``arrays`` that is CameraRays with a camera carries, else None."""
+    for a in arrays:
+        c = getattr(a, "camera", None)
+        if isinstance(c, Camera):
+            return c
     return None
 
 
@@ -295,4 +308,5 @@ def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     o = np.broadcast_to(eye, d.shape).astype(np.float32)
     o, d = o.view(CameraRays), d.view(CameraRays)
     o.image_width = d.image_width = int(camera.width)
+    o.camera = d.camera = camera
     return o, d
