@@ -13,7 +13,7 @@ direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, 
 direction's quantised spherical angles; ``tileWxH``, camera rays tile by tile, so trace() takes them
 as a list (trace_rays_fetch) in tiles; ``heavyP``, 8x4 tiles with the costliest P % first (heavy_first):
 what ordering could gain, the sort itself not timed; ``probeP``, the same ranked by one probe ray a tile;
-``odP``, ranked by the overdraw of the BVH's boxes projected with the view's camera, overdraw_first),
+``odP``, ranked by the library's estimate from the camera and the BVH, overdraw_first),
 ``noorder`` (camera rays as plain arrays: row order, no tile order, rtlab.device.tile_orders),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
@@ -122,36 +122,15 @@ def heavy_first(percent: float, origins, directions, probe: bool = False) -> np.
 
 
 def overdraw_first(percent: float, origins) -> np.ndarray:
-    """heavy_first's order with each 8x4 tile ranked by a cost known before any ray is traced: the
-    boxes of the binary BVH's children projected with the view's camera, each adding its weight (a
-    leaf 75 a triangle, an inner child 60) to every tile its screen rectangle covers (a box reaching
-    behind the eye covers all): the overdraw, occlusion ignored."""
-    from rtlab.accel.bvh_stats import traversal_bvh
+    """heavy_first's order with each 8x4 tile ranked by the library's estimate, known before any ray is
+    traced (rtlab.accel.tile_costs: the 4-wide BVH's boxes projected with the view's camera)."""
+    from rtlab.accel.bvh4 import load_or_build_bvh4
+    from rtlab.accel.tile_costs import tile_boxes, tile_costs
     scene = HEAVY_SCENE["scene"]
     side = int(round(len(origins) ** 0.5))
     order = tile_order(side, side, 8, 4)
-    bvh = traversal_bvh(scene.vertices, scene.faces)
-    lo, hi, ref = bvh.child_lo.reshape(-1, 3), bvh.child_hi.reshape(-1, 3), bvh.child_ref.reshape(-1)
-    weight = np.where(ref < 0, 75.0 * np.maximum((~ref) & 15, 1), 60.0)
-    corners = np.stack([np.stack([np.where(c >> k & 1, hi[:, k], lo[:, k]) for k in range(3)], 1)
-                        for c in range(8)], 1).astype(np.float64)
-    eye, u, v, w = scene.camera.basis()
-    q = corners - np.asarray(eye, np.float64)
-    a = q @ w / (w @ w)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = ((q @ u / (u @ u)) / a + 1) / 2 * side
-        y = (1 - (q @ v / (v @ v)) / a) / 2 * side
-    nx, ny = side // 8, side // 4
-    behind = (a <= 1e-9).any(1)
-    x0 = np.where(behind, 0, np.floor(x.min(1) / 8)); x1 = np.where(behind, nx - 1, np.floor(x.max(1) / 8))
-    y0 = np.where(behind, 0, np.floor(y.min(1) / 4)); y1 = np.where(behind, ny - 1, np.floor(y.max(1) / 4))
-    ok = (x1 >= 0) & (y1 >= 0) & (x0 < nx) & (y0 < ny)
-    x0, x1, y0, y1 = (np.clip(c[ok], 0, n - 1).astype(int) for c, n in ((x0, nx), (x1, nx), (y0, ny), (y1, ny)))
-    wv = weight[ok]
-    g = np.zeros((ny + 1, nx + 1))
-    for yy, xx, sign in ((y0, x0, 1), (y0, x1 + 1, -1), (y1 + 1, x0, -1), (y1 + 1, x1 + 1, 1)):
-        np.add.at(g, (yy, xx), sign * wv)
-    tile_cost = g.cumsum(0).cumsum(1)[:ny, :nx].ravel()
+    boxes = tile_boxes(load_or_build_bvh4(scene.vertices, scene.faces)[0])
+    tile_cost = tile_costs(boxes, scene.camera.basis(), side, side, (8, 4)).ravel()
     k = int(round(len(tile_cost) * percent / 100))
     heavy = np.argsort(-tile_cost, kind="stable")[:k]
     rest = np.setdiff1d(np.arange(len(tile_cost)), heavy)

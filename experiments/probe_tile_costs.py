@@ -6,7 +6,9 @@
 ``overlap``: for each benchmark view, each 8x16 tile's cost (its costliest ray: node visits x 121 +
 triangle tests x 75, the 4-wide walk mirrored on the host) against a probe's estimate (the ray at row
 2, column 4 of each of the tile's four 8x4 warp parts, the largest of the four): how many of the
-costliest 1 % and 3 % of the tiles the probe's own costliest 1 % and 3 % find. ``time``: the kernel
+costliest 1 % and 3 % of the tiles the probe's own costliest 1 % and 3 % find; and the same for the
+estimate trace() orders camera rays by (rtlab.accel.tile_costs, no ray traced), with its Spearman rank
+correlation against the tiles' costs. ``time``: the kernel
 time of trace() over the probe rays alone (one an 8x4 tile, 1/32 of the rays, or one in four 8x4 tiles),
 through trace_rays and trace_rays_fetch: what a probe launch would cost before the ordered launch. The
 order the probe gives is timed by ab_trace_configs.py's ``sortprobeP``.
@@ -27,8 +29,10 @@ VIEWS = "bunny/far,bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conferenc
 def overlap(views: list[str], size: int) -> None:
     from rtlab.accel.bvh4 import load_or_build_bvh4
     from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
-    print("| view | tile cost: mean / p99 / max | probe finds of the costliest 1 % | of the costliest 3 % |")
-    print("|---|---|---:|---:|")
+    from rtlab.accel.tile_costs import tile_boxes, tile_costs
+    print("| view | tile cost: mean / p99 / max | probe finds of the costliest 1 % | of the costliest 3 % "
+          "| estimate finds of the costliest 1 % | of the costliest 3 % | estimate's Spearman |")
+    print("|---|---|---:|---:|---:|---:|---:|")
     for view in views:
         batch = make_rays(view, "primary", size)
         b, _ = load_or_build_bvh4(batch.scene.vertices, batch.scene.faces)
@@ -37,11 +41,15 @@ def overlap(views: list[str], size: int) -> None:
         cost = (np.asarray(nodes) * 121 + np.asarray(tris) * 75).reshape(size // 16, 4, 4, size // 8, 8)
         tile = cost.max(axis=(1, 2, 4)).ravel()                 # (tile row, warp part, row, tile column, column)
         probe = cost[:, :, 2, :, 4].max(axis=1).ravel()
+        estimate = tile_costs(tile_boxes(b), batch.scene.camera.basis(), size, size, (8, 16)).ravel()
         cells = []
-        for percent in (1, 3):
-            k = len(tile) * percent // 100
-            found = np.intersect1d(np.argsort(-tile, kind="stable")[:k], np.argsort(-probe, kind="stable")[:k])
-            cells.append(f"{len(found)} of {k}")
+        for guess in (probe, estimate):
+            for percent in (1, 3):
+                k = len(tile) * percent // 100
+                found = np.intersect1d(np.argsort(-tile, kind="stable")[:k], np.argsort(-guess, kind="stable")[:k])
+                cells.append(f"{len(found)} of {k}")
+        rank = lambda a: np.argsort(np.argsort(a, kind="stable"), kind="stable")   # noqa: E731
+        cells.append(f"{np.corrcoef(rank(tile), rank(estimate))[0, 1]:.2f}")
         print(f"| {view} | {tile.mean():,.0f} / {np.percentile(tile, 99):,.0f} / {tile.max():,.0f} | "
               + " | ".join(cells) + " |", flush=True)
 

@@ -51,16 +51,27 @@ def test_a_box_adds_its_weight_to_every_tile_whose_rays_enter_it(seed):
         assert set(np.unique(costs).tolist()) <= {0.0, 1.0}
 
 
-def test_tile_costs_weigh_nodes_and_triangles():
-    """A scene's estimate: every tile is covered by the root's children (cost >= one node), and the
-    total is at least each leaf's triangles times the triangle cost over the tiles it covers."""
-    from rtlab.accel.bvh4 import load_or_build_bvh4
-    scene = rtlab.load_scene("default", size=32)
-    bvh4 = load_or_build_bvh4(scene.vertices, scene.faces)[0]
-    costs = tc.tile_costs(bvh4, scene.camera.basis(), 32, 32, (8, 16))
-    assert costs.shape == (2, 4) and costs.min() > 0
-    count = (~bvh4.refs()[bvh4.refs() < 0]) & 15
-    assert costs.max() <= tc.NODE_COST * (bvh4.refs() >= 0).sum() + tc.TRI_COST * count.sum()
+def test_a_trees_estimate_holds_the_weight_of_every_box_its_rays_enter():
+    """tile_costs over a real 4-wide tree (random triangles): each tile's estimate is at least the sum
+    of the weights (a node's cost, a leaf's triangles x the triangle cost) of the boxes that some ray of
+    the tile enters, by float64 brute force, and the root's children cover every tile."""
+    from rtlab.accel.bvh4 import build_bvh4
+    rng = np.random.default_rng(5)
+    centers = rng.uniform(-1.0, 1.0, size=(60, 1, 3))
+    vertices = (centers + rng.normal(scale=0.15, size=(60, 3, 3))).reshape(-1, 3).astype(np.float32)
+    faces = np.arange(180, dtype=np.int32).reshape(-1, 3)
+    bvh4 = build_bvh4(vertices, faces)
+    camera = Camera(eye=(0.2, 0.3, 3.0), target=(0.0, 0.0, 0.0), width=32, height=24)
+    boxes = tc.tile_boxes(bvh4)
+    costs = tc.tile_costs(boxes, camera.basis(), 32, 24, (8, 16)).ravel()
+    floor = np.zeros_like(costs)
+    lo, hi, weight = boxes
+    for b in np.flatnonzero(lo[:, 0] <= hi[:, 0]):
+        floor[sorted(_covered_tiles(camera, lo[b], hi[b], (8, 16)))] += weight[b]
+    refs = bvh4.refs()
+    assert set(np.unique(weight).tolist()) <= {tc.NODE_COST, *(tc.TRI_COST * np.arange(1, 16)).tolist()}
+    assert (weight == tc.NODE_COST).sum() == (refs.reshape(-1) >= 0).sum()
+    assert np.all(costs >= floor - 1e-9) and floor.min() > 0
 
 
 @pytest.mark.parametrize("size", [(64, 64), (37, 29)])
@@ -97,3 +108,17 @@ def test_camera_rays_carry_their_camera_and_the_default_takes_the_order_on_a_gpu
     result = trace(scene, o, d, backend)
     assert (result.tile_order is not None) == (backend.has_warp_votes() and
                                               tracing.default_variant(backend, rays=True).traversal == "bvh4")
+
+
+def test_an_uploaded_scene_keeps_its_last_orders_only(backend, monkeypatch):
+    """A camera that moves every frame makes an order a frame: the scene keeps the last KEPT_ORDERS."""
+    from rtlab.device import tile_orders
+    from rtlab.device.device_scene import device_scene
+    scene = rtlab.load_scene("default", size=16)
+    monkeypatch.setattr(tracing, "orders_tiles", lambda *a: True)
+    monkeypatch.setattr(tile_orders, "KEPT_ORDERS", 2)
+    for step in range(4):
+        camera = replace(scene.camera, eye=tuple(np.asarray(scene.camera.eye) + 0.01 * step))
+        trace(scene, *camera_rays(camera), backend, Variant(traversal="bvh4"))
+    kept = [k for k in device_scene(scene, backend).tile_orders if k != "boxes"]
+    assert len(kept) == 2 and kept[-1][1] == tuple(float(x) for x in camera.basis()[0])

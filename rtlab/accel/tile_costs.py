@@ -6,8 +6,8 @@ estimated as the cost of a walk that entered every box whose screen rectangle co
 inner node (the SASS of one 4-wide visit, as in rtlab.accel.bvh_wide_stats) and 75 a triangle for a
 leaf. Occlusion is ignored (an overdraw). A box that reaches behind the eye is clipped to the half
 space in front of it, so a box beside the camera covers the side of the image it reaches into, and
-one around the eye covers all of it. The ranking it gives (Spearman 0.85-0.96 against the host
-mirror's per-tile cost on the benchmark views, SPONZA 0.63) is what matters, not the figure.
+one around the eye covers all of it. The ranking it gives is what matters, not the figure (how well
+it ranks the benchmark views' tiles: experiments/probe_tile_costs.py overlap, docs/results.md).
 
 Why many parameters: numba's compiled functions take arrays and scalars one by one (no objects in
 nopython mode), so the camera's rows and the image's sizes are parameters.
@@ -78,15 +78,21 @@ def _accumulate(lo, hi, weight, eye, u, v, w, width, height, tile_w, tile_h, gri
         grid[ty1 + 1, tx1 + 1] += weight[b]
 
 
-def tile_costs(bvh4: Bvh4, basis: np.ndarray, width: int, height: int, tile: tuple[int, int]) -> np.ndarray:
-    """(tiles high, tiles wide) float64: each tile's estimated cost (the module docstring) for the
-    camera of ``basis`` (rtlab.scene.Camera.basis: eye, u, v, w) on a width x height image cut into
-    tiles of ``tile`` = (w, h) pixels."""
+def tile_boxes(bvh4: Bvh4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, weight): every child box of the 4-wide tree in float64 and its cost, NODE_COST for an
+    inner node and TRI_COST a triangle for a leaf; an empty slot's box is (+inf, -inf)."""
     planes, refs = bvh4.planes(), bvh4.refs().reshape(-1)
     lo = np.stack([planes[:, 0], planes[:, 2], planes[:, 4]], -1).reshape(-1, 3).astype(np.float64)
     hi = np.stack([planes[:, 1], planes[:, 3], planes[:, 5]], -1).reshape(-1, 3).astype(np.float64)
     count = np.where(refs < 0, (~refs) & ((1 << LEAF_BITS) - 1), 0)
-    weight = np.where(refs < 0, TRI_COST * np.maximum(count, 1), NODE_COST)
+    return lo, hi, np.where(refs < 0, TRI_COST * np.maximum(count, 1), NODE_COST)
+
+
+def tile_costs(boxes: tuple, basis: np.ndarray, width: int, height: int, tile: tuple[int, int]) -> np.ndarray:
+    """(tiles high, tiles wide) float64: each tile's estimated cost (the module docstring) from the
+    ``boxes`` of tile_boxes, for the camera of ``basis`` (rtlab.scene.Camera.basis: eye, u, v, w) on a
+    width x height image cut into tiles of ``tile`` = (w, h) pixels."""
+    lo, hi, weight = boxes
     tw, th = tile
     nx, ny = -(-width // tw), -(-height // th)
     grid = np.zeros((ny + 1, nx + 1))

@@ -6,7 +6,8 @@ rings, a dragon's head) start wherever they sit in the image, and the SMs idle b
 end. Launched first, they overlap the cheap ones (docs/results.md, "Camera rays, costliest tiles
 first"). The order comes from the camera and the 4-wide BVH alone (rtlab.accel.tile_costs: the
 boxes projected onto the tiles), before any ray is traced: it is built once per uploaded scene,
-camera, image size and block, and kept with the uploaded scene, as light buffers are. The hits are
+camera, image size and block, and kept with the uploaded scene (the last KEPT_ORDERS of them), as
+light buffers are. The hits are
 the same in any order. Where the costs are nearly even (SPONZA's inside view) the order neither gains
 nor loses (docs/results.md), so every such launch takes it.
 """
@@ -18,7 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..accel.bvh4 import load_or_build_bvh4
-from ..accel.tile_costs import tile_costs
+from ..accel.tile_costs import tile_boxes, tile_costs
+
+KEPT_ORDERS = 8         # orders kept with an uploaded scene: a camera that moves every frame makes one a frame
 
 @dataclass
 class TileOrder:
@@ -47,10 +50,13 @@ def tile_order(ds, camera, width: int, height: int, block: tuple[int, int]) -> T
     made = ds.tile_orders.get(key)
     if made is None:
         start = time.perf_counter()
-        bvh4 = ds.tile_orders.get("bvh4")
-        if bvh4 is None:
-            bvh4 = ds.tile_orders["bvh4"] = load_or_build_bvh4(ds.scene.vertices, ds.scene.faces)[0]
-        costs = tile_costs(bvh4, camera.basis(), width, height, block)
+        boxes = ds.tile_orders.get("boxes")
+        if boxes is None:
+            boxes = ds.tile_orders["boxes"] = tile_boxes(load_or_build_bvh4(ds.scene.vertices, ds.scene.faces)[0])
+        orders = [k for k in ds.tile_orders if k != "boxes"]
+        for old in orders[:max(0, len(orders) - KEPT_ORDERS + 1)]:      # oldest first (dicts keep insertion order)
+            del ds.tile_orders[old]
+        costs = tile_costs(boxes, camera.basis(), width, height, block)
         mean = costs.mean()
         spread = float(costs.std() / mean) if mean > 0 else 0.0
         rows, cols = np.divmod(np.argsort(-costs.ravel(), kind="stable"), costs.shape[1])
