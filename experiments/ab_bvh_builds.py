@@ -12,12 +12,16 @@ the builder's defaults. Each configuration gets its own DeviceScene, so the tree
 
 With ``--family bvh4`` the configurations change the 4-wide tree's collapse instead
 (rtlab.accel.bvh4.Bvh4BuildParams, run with the "bvh4" traversal): ``cnX`` cost_node, ``cpX``
-cost_prim, ``lmN`` leaf_max, ``plain`` / ``split`` the binary tree it collapses (default: the cheaper).
+cost_prim, ``lmN`` leaf_max, ``plain`` / ``split`` the binary tree it collapses (default: the cheaper),
+``strideN`` each node padded to N float4 rows (the layout, not the tree). ``--defines NAME=V,...``
+compiles the same -D into every configuration's kernels.
 """
 from __future__ import annotations
 
 import dataclasses
 from unittest import mock
+
+import numpy as np
 
 from ab_trace_configs import ab_arguments, ab_batches, print_row   # experiments/ is on the path as a script
 from rtlab.accel import bvh_stats
@@ -34,7 +38,8 @@ from rtlab.device.tracing import trace
 # Configuration parts: prefix -> (field, type), and whole words -> (field, value)
 BVH_PREFIXES = {"ml": ("max_leaf_size", int), "ct": ("cost_traversal", float), "ci": ("cost_intersect", float),
                 "bins": ("bins", int), "gain": ("gain", float)}       # gain: the SAH gain that keeps the split tree
-BVH4_PREFIXES = {"cn": ("cost_node", float), "cp": ("cost_prim", float), "lm": ("leaf_max", int)}
+BVH4_PREFIXES = {"cn": ("cost_node", float), "cp": ("cost_prim", float), "lm": ("leaf_max", int),
+                 "stride": ("stride", int)}
 BVH4_WORDS = {"plain": ("binary", "plain"), "split": ("binary", "split")}
 
 
@@ -75,11 +80,35 @@ def bvh_build(scene, changes: dict):
     return device_scene_module.bvh_accel(scene, None, bvh), info
 
 
+def padded_rows(b, stride: int):
+    """The 4-wide tree's rows with each node padded to ``stride`` rows (8: one 128-B line, node starts
+    aligned), the refs rewritten to the new rows; the kernels read any stride, as their refs say."""
+    from rtlab.accel.bvh4 import LEAF_BITS, NODE_ROWS
+    m, tri0 = b.n_nodes, b.tri_row0
+    rows = np.zeros((stride * m + len(b.rows) - tri0, 4), np.float32)
+    nodes = rows[:stride * m].reshape(m, stride, 4)
+    nodes[:, :NODE_ROWS] = b.rows[:tri0].reshape(m, NODE_ROWS, 4)
+    rows[stride * m:] = b.rows[tri0:]
+    refs = nodes.view(np.int32)[:, 6, :].astype(np.int64)
+    inner = refs >= 0
+    bits = ~refs
+    first = (bits >> LEAF_BITS) - tri0 + stride * m
+    leaf = ~((first << LEAF_BITS) | (bits & ((1 << LEAF_BITS) - 1)))
+    empty = refs == ~0
+    out = np.where(inner, refs // NODE_ROWS * stride, np.where(empty, ~0, leaf))
+    nodes.view(np.int32)[:, 6, :] = out.astype(np.int32)
+    return rows
+
+
 def bvh4_build(scene, changes: dict):
     """(upload arrays, description) of the 4-wide tree collapsed under ``changes``."""
+    changes = dict(changes)
+    stride = changes.pop("stride", None)
     b, _ = load_or_build_bvh4(scene.vertices, scene.faces, dataclasses.replace(Bvh4BuildParams(), **changes))
-    return (device_scene_module.bvh4_accel(scene, None, b),
-            f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}")
+    arrays = device_scene_module.bvh4_accel(scene, None, b)
+    if stride:
+        arrays = dataclasses.replace(arrays, node_data=padded_rows(b, stride))
+    return arrays, f"{b.binary} tree collapsed, cost {b.cost:.2f}, {b.n_nodes:,} nodes, depth {b.depth}"
 
 
 FAMILIES = {"bvh": (BVH_PREFIXES, None, bvh_build), "bvh4": (BVH4_PREFIXES, BVH4_WORDS, bvh4_build)}
@@ -103,7 +132,9 @@ def main(argv=None) -> None:
     ap.add_argument("--variant", default=None, help="a variant reading the family's tree (default: the backend's "
                                                      "default with the family's traversal)")
     ap.add_argument("--family", default="bvh", choices=("bvh", "bvh4"), help="the tree the configurations change")
+    ap.add_argument("--defines", default="", help="NAME=V,... compiled into every configuration's kernels")
     a = ap.parse_args(argv)
+    defines = {k: int(v) for k, v in (d.split("=") for d in a.defines.split(",") if d)}
     backend = get_backend(a.backend, a.device)
     variant = tracing.resolve_variant(a.variant or a.family, backend, rays=True)
     prefixes, words, _ = FAMILIES[a.family]
@@ -125,7 +156,7 @@ def main(argv=None) -> None:
                 with mock.patch.object(tracing, "device_scene", lambda *_args, **_kw: ds), \
                         mock.patch.dict(device_scene_module.ACCEL_BUILDERS, {a.family: builder}):
                     r = trace(batch.scene, batch.origins, batch.directions, backend, variant,
-                              repeats=a.repeats, warmup=1, width=width)
+                              repeats=a.repeats, warmup=1, width=width, defines=defines)
                 best[c].append(min(r.launches_ms))
                 last[c] = r
         print_row(batch, best, last, peers.get((batch.view, batch.kind, a.size), {}).get("best"))

@@ -4,13 +4,14 @@
  * first and the others pushed with their entry distance, so that a popped child beyond the closest
  * hit so far is dropped (pop culling). A pushed child is its node's row and its sort key; its ref is
  * read from the node when it is popped and not culled, so a visit picks one ref from the refs row
- * (the nearest child's) and pushes only when a second child is hit. Built by rtlab/accel/bvh4.py: the
- * optimal collapse of Ylitie, Karras & Laine 2017 to 4 children a node, from the binary SAH/SBVH
- * trees. Why 4 and not 8: on the benchmark views (experiments/bench_wide_bvh_quality.py, host
- * mirrors) this traversal tests 0.8-1.0x the boxes the binary BVH tests, in 0.4-0.5x the node visits,
- * where the compressed 8-wide one (rt_bvh8.h: octant order, no distances to cull by) tests 1.0-1.7x
- * the boxes, each box dearer by its decode; ncu found the binary BVH issue-bound on SPONZA, so boxes
- * tested count. It is trace()'s GPU default (rtlab.device.variants.GPU_RAYS_VARIANT).
+ * (the nearest child's, the row loaded with the planes) and pushes only when a second child is hit.
+ * Built by rtlab/accel/bvh4.py: the optimal collapse of Ylitie, Karras & Laine 2017 to 4 children a
+ * node, from the binary SAH/SBVH trees. Why 4 and not 8: on the benchmark views
+ * (experiments/bench_wide_bvh_quality.py, host mirrors) this traversal tests 0.8-1.0x the boxes the
+ * binary BVH tests, in 0.4-0.5x the node visits, where the compressed 8-wide one (rt_bvh8.h: octant
+ * order, no distances to cull by) tests 1.0-1.7x the boxes, each box dearer by its decode; ncu found
+ * the binary BVH issue-bound on SPONZA, so boxes tested count. It is trace()'s GPU default
+ * (rtlab.device.variants.GPU_RAYS_VARIANT).
  *
  * Node layout in node_data, 7 float4 = 112 B per node (sync with rtlab/accel/bvh4.py):
  *   [row + 0] = lo.x of children 0-3    [row + 1] = hi.x
@@ -89,12 +90,15 @@ RT_FN void bvh4_order(int *a, int *b)
 }
 
 /* Test the four children of the node at row `row`; push all hit but the nearest (farthest first) and
- * return the nearest, or BVH4_NONE when none is hit. */
-RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bvh4Entry *stack, int *sp)
+ * return the nearest, or BVH4_NONE when none is hit. *top gets a copy of the stack's top entry where
+ * it changes (bvh4_pop_top). */
+RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bvh4Entry *stack, int *sp,
+                     Bvh4Entry *top)
 {
     float4 nx = load_node_data(node_data, row + r->near_x), fx = load_node_data(node_data, row + (r->near_x ^ 1));
     float4 ny = load_node_data(node_data, row + r->near_y), fy = load_node_data(node_data, row + (r->near_y ^ 1));
     float4 nz = load_node_data(node_data, row + r->near_z), fz = load_node_data(node_data, row + (r->near_z ^ 1));
+    float4 refs = load_node_data(node_data, row + 6);
     float3 a = r->inv, on = r->o_near, of = r->o_far;
     int k0 = bvh4_key(rt_fma(nx.x, a.x, -on.x), rt_fma(ny.x, a.y, -on.y), rt_fma(nz.x, a.z, -on.z),
                       rt_fma(fx.x, a.x, -of.x), rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), r, t_cut, 0);
@@ -110,11 +114,15 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     bvh4_order(&k0, &k2);
     bvh4_order(&k1, &k3);
     bvh4_order(&k1, &k2);
+    /* The nearest child's ref, picked whether or not it is hit: used either way, the refs row's load
+     * stays beside the planes' (in a branch, the compiler sinks it there, a second memory latency a
+     * visit on the walk's path) */
+    int nearest = rt_as_int(get4(refs, k0 & 3));
     if (k0 == BVH4_MISS)
-        return BVH4_NONE;
+        nearest = BVH4_NONE;
     /* The others farthest first, where a second child is hit (misses sort last, so the hits are k1,
      * k2, k3 in order: k3 and k2 are written and counted only if hit, the stack has 3 spare entries).
-     * No ref is picked for them here (the pop reads it): the refs row is needed for k0 only. */
+     * No ref is picked for them here (the pop reads it from the node). */
     if (k1 != BVH4_MISS) {
         int n = *sp;
         stack[n].row = row;
@@ -126,8 +134,10 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
         stack[n].row = row;
         stack[n].key = k1;
         *sp = n + 1;
+        top->row = row;
+        top->key = k1;
     }
-    return rt_as_int(get4(load_node_data(node_data, row + 6), k0 & 3));
+    return nearest;
 }
 
 /* The most recent pending child that may still hold a hit as close as t_cut, t_cull of the closest hit
@@ -139,6 +149,24 @@ RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut
     while (*sp > 0) {
         --*sp;
         Bvh4Entry e = stack[*sp];
+        if (e.key <= cut)
+            return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
+    }
+    return BVH4_NONE;
+}
+
+/* bvh4_pop with the stack's top entry held in registers (*top, kept by bvh4_visit): the popped entry
+ * needs no local-memory read, and the read of the entry below it is issued here and waited for only
+ * at the next pop. The closest-hit walk (camera rays) gains by it; the ray fetch's walk, whose state
+ * outlives each refill, lost by it and pops from memory (docs/results.md has both A/Bs). */
+RT_FN int bvh4_pop_top(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut, Bvh4Entry *top)
+{
+    int cut = rt_as_int(t_cut) | 3;
+    while (*sp > 0) {
+        --*sp;
+        Bvh4Entry e = *top;
+        if (*sp > 0)
+            *top = stack[*sp - 1];
         if (e.key <= cut)
             return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
     }
@@ -166,21 +194,23 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
         return;
     Bvh4Ray r = bvh4_ray(ray, t_exit);
-    Bvh4Entry stack[RT_STACK_SIZE + 3];
+    Bvh4Entry stack[RT_STACK_SIZE + 3], top;
     int sp = 0;
     int ref = 0;
+    top.row = 0;
+    top.key = 0;
     float t_cut = t_cull(hit->t);      /* changes only where a leaf finds a hit */
     for (;;) {
         /* Inner nodes: enter the nearest child hit */
         while (ref >= 0)
-            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp);
+            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp, &top);
         /* A leaf: its triangles' rows */
         if (ref != BVH4_NONE) {
             if (bvh4_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
                 return;
             t_cut = t_cull(hit->t);
         }
-        ref = bvh4_pop(RT_SCENE_ARGS, stack, &sp, t_cut);
+        ref = bvh4_pop_top(RT_SCENE_ARGS, stack, &sp, t_cut, &top);
         if (ref == BVH4_NONE)
             return;
     }
@@ -205,10 +235,11 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
 
 RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
 {
+    Bvh4Entry unused_top;              /* this walk pops from memory (bvh4_pop_top says why) */
     float t_cut = t_cull(s->hit.t);
     for (;;) {
         while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
-            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, t_cut, stack, &s->sp);
+            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, t_cut, stack, &s->sp, &unused_top);
         if (s->ref != BVH4_NONE) {
             bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
             t_cut = t_cull(s->hit.t);
