@@ -90,12 +90,9 @@ def padded_rows(b, stride: int):
     nodes[:, :NODE_ROWS] = b.rows[:tri0].reshape(m, NODE_ROWS, 4)
     rows[stride * m:] = b.rows[tri0:]
     refs = nodes.view(np.int32)[:, 6, :].astype(np.int64)
-    inner = refs >= 0
-    bits = ~refs
-    first = (bits >> LEAF_BITS) - tri0 + stride * m
-    leaf = ~((first << LEAF_BITS) | (bits & ((1 << LEAF_BITS) - 1)))
-    empty = refs == ~0
-    out = np.where(inner, refs // NODE_ROWS * stride, np.where(empty, ~0, leaf))
+    # a leaf ref is ~(first row << LEAF_BITS | count): its triangles moving down by `shift` rows lowers it
+    shift = (stride - NODE_ROWS) * m
+    out = np.where(refs >= 0, refs // NODE_ROWS * stride, np.where(refs == ~0, ~0, refs - (shift << LEAF_BITS)))
     nodes.view(np.int32)[:, 6, :] = out.astype(np.int32)
     return rows
 

@@ -140,6 +140,12 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     return nearest;
 }
 
+/* A pending child's ref, read from its node's refs row */
+RT_FN int bvh4_entry_ref(RT_SCENE_PARAMS, Bvh4Entry e)
+{
+    return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
+}
+
 /* The most recent pending child that may still hold a hit as close as t_cut, t_cull of the closest hit
  * so far (keys of entry distances >= +0 order as ints; (key & ~3) <= t_cut as bits is key <= t_cut | 3),
  * or BVH4_NONE */
@@ -150,7 +156,7 @@ RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut
         --*sp;
         Bvh4Entry e = stack[*sp];
         if (e.key <= cut)
-            return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
+            return bvh4_entry_ref(RT_SCENE_ARGS, e);
     }
     return BVH4_NONE;
 }
@@ -168,7 +174,7 @@ RT_FN int bvh4_pop_top(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t
         if (*sp > 0)
             *top = stack[*sp - 1];
         if (e.key <= cut)
-            return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
+            return bvh4_entry_ref(RT_SCENE_ARGS, e);
     }
     return BVH4_NONE;
 }
