@@ -8,7 +8,7 @@
 #     stall reason) and the L1 and L2 hit rates;
 #   lanes: threads active per executed warp instruction (of 32), instructions, SM cycles, warps active:
 #     whether divergence or instruction count bounds a kernel. CASES and DEFINES (-D NAME=V for the
-#     trace cases) and NO_WHITTED=1 narrow it;
+#     trace cases), SIZE (the trace cases' image side, 1024 by default) and NO_WHITTED=1 narrow it;
 #   frames: the limit sections for the frames' kernels: render_primary and render_shadows (the frames'
 #     GPU default, SCENES, 1024²) and the Whitted frame's.
 # Usage (device run, carry .device): source .device/setup.sh && bash experiments/gpu_distance_to_limit.sh [stalls|lanes|frames]
@@ -17,12 +17,13 @@ PART=${1:-limit}
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
 cat > /tmp/one_trace.py <<'PY'
-import sys
+import os, sys
 from rtlab.benches.rays import make_rays
 from rtlab.device.tracing import trace
 view, kind = sys.argv[1].split(":")
-b = make_rays(view, kind, 1024, check_rays=1)
-trace(b.scene, b.origins, b.directions, "cuda", width=1024 if kind == "primary" else None, repeats=2,
+size = int(os.environ.get("SIZE", "1024"))
+b = make_rays(view, kind, size, check_rays=1)
+trace(b.scene, b.origins, b.directions, "cuda", width=size if kind == "primary" else None, repeats=2,
       defines={k: int(v) for k, v in (a.split("=") for a in sys.argv[2:])} or None)
 PY
 case "$PART" in
