@@ -214,8 +214,8 @@ def test_whitted_program_cap_reaches_nvcc():
 
 @pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
 def test_trace_program_cap_reaches_nvcc():
-    """The options the loader gives library_trace with the 4-wide BVH: on CUDA a cap of 72, under which
-    every trace kernel stays within 72 registers; NVIDIA's OpenCL gets 64. The binary BVH's trace
+    """The options the loader gives library_trace with the 4-wide BVH: a cap of 72 on CUDA, under which
+    every trace kernel stays within 72 registers, and on NVIDIA's OpenCL. The binary BVH's trace
     kernels get no cap (ptxas would take it as leave to use more). A variant's own cap comes first, and
     as the loader words it, it reaches ptxas: the ray fetch, above 48 registers free, is built within
     48 (the default cap may not bind: the kernels can fit under it uncapped)."""
@@ -227,7 +227,7 @@ def test_trace_program_cap_reaches_nvcc():
     capped = nvcc_resources(src, wide, extra_options=options)
     kernels = ("trace_ray_grid", "trace_ray_grid_ordered", "trace_rays", "trace_rays_fetch")
     assert max(capped[k].registers for k in kernels) <= 72
-    assert build_options(Variant(traversal="bvh4"), _FakeNvidia(), "library_trace") == ("-cl-nv-maxrregcount=64",)
+    assert build_options(Variant(traversal="bvh4"), _FakeNvidia(), "library_trace") == ("-cl-nv-maxrregcount=72",)
     assert build_options(Variant(traversal="bvh4"), "opencl", "library_trace") == ()     # PoCL: no register file
     assert build_options(Variant(traversal="bvh"), "cuda", "library_trace") == ()
     named = build_options(Variant(traversal="bvh4", max_registers=48), "cuda", "library_trace")

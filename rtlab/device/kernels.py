@@ -143,12 +143,12 @@ def rays_per_work_item(variant: Variant) -> int:
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
 # refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
-# BVH: 72 on CUDA, under which ptxas schedules its kernels faster than under 64, and 64 on NVIDIA's
-# OpenCL, which runs slower at 72 (docs/results.md, "trace()'s register cap"); only there, since ptxas
-# reads a cap above a kernel's count as leave to use more (the binary BVH's trace_ray_grid takes more
-# under it). Keys: a program, (program, traversal), or (program, traversal, language), the most
-# specific first.
-LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 64, ("library_trace", "bvh4", "cuda"): 72}
+# BVH: 72, under which ptxas schedules its kernels faster than under 64, on CUDA and, since the walk
+# holds its stack's top in registers, on NVIDIA's OpenCL too (docs/results.md, "trace()'s register
+# cap"); only there, since ptxas reads a cap above a kernel's count as leave to use more (the binary
+# BVH's trace_ray_grid takes more under it). Keys: a program, (program, traversal), or (program,
+# traversal, language), the most specific first.
+LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 72}
 
 
 def build_options(variant: Variant, backend, program: str | None = None) -> tuple[str, ...]:
