@@ -143,11 +143,10 @@ def rays_per_work_item(variant: Variant) -> int:
 # with bounces): 64, the occupancy step of a 128-thread block (32 warps an SM). With the watertight test
 # its kernels take more uncapped; capped, they spill only around the test's rarely taken double
 # refinement and run faster (docs/results.md, "Whitted: a register cap"). library_trace with the 4-wide
-# BVH: 72, under which ptxas schedules its kernels faster than under 64, on CUDA and, since the walk
-# holds its stack's top in registers, on NVIDIA's OpenCL too (docs/results.md, "trace()'s register
-# cap"); only there, since ptxas reads a cap above a kernel's count as leave to use more (the binary
-# BVH's trace_ray_grid takes more under it). Keys: a program, (program, traversal), or (program,
-# traversal, language), the most specific first.
+# BVH: 72, under which ptxas schedules its kernels faster than under 64, on CUDA and NVIDIA's OpenCL
+# alike (docs/results.md, "trace()'s register cap"); only there, since ptxas reads a cap above a
+# kernel's count as leave to use more (the binary BVH's trace_ray_grid takes more under it). Keys: a
+# program, or (program, traversal), the more specific first.
 LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 72}
 
 
@@ -156,8 +155,8 @@ def build_options(variant: Variant, backend, program: str | None = None) -> tupl
     variant names none, ``program``'s LIBRARY_REGISTER_CAPS. ``backend`` is a Backend or a language
     name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
     language = backend if isinstance(backend, str) else backend.language
-    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal, language))
-            or LIBRARY_REGISTER_CAPS.get((program, variant.traversal)) or LIBRARY_REGISTER_CAPS.get(program, 0))
+    n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal))
+            or LIBRARY_REGISTER_CAPS.get(program, 0))
     if not n:
         return ()
     if language == "cuda":
