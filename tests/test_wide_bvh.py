@@ -279,6 +279,26 @@ def test_wide_bvh_counting_build_counts_its_reads(backend, traversal):
     assert tree > 0 and tree % 1 == 0 and tris >= 0
 
 
+@pytest.mark.parametrize("name", list(SCENES))
+def test_bvh4_walk_reads_the_nodes_its_float64_mirror_visits(backend, name):
+    """The 4-wide walk's culling and order, counted: its counting build reads 7 rows a node visit, 3 a
+    triangle test and one ref a popped child, so over the rays its reads lie between 7 V + 3 T and
+    8 V + 3 T for the V visits and T tests of the float64 host mirror of rt_bvh4.h's order (a few %
+    either way for float ties). A walk that kept the same hits but culled or sorted worse (the box
+    distances in the wrong units, a cut not applied) reads many times more."""
+    from rtlab.accel.bvh4 import load_or_build_bvh4
+    from rtlab.device.device_scene import device_scene
+    scene, o, d, _ = _case(name)
+    ds = device_scene(scene, backend)
+    ds.reserve_work_counters(len(o))
+    trace(scene, o, d, backend=backend, variant=Variant("bvh4", "watertight", count_work=True))
+    reads = ds.take_work_counts()[0]
+    b4, _ = load_or_build_bvh4(scene.vertices, scene.faces)
+    visits, _, tests, _, _ = traversal_counts_bvh4(b4, scene.vertices, scene.faces, o, d)
+    lo, hi = 7 * visits.sum() + 3 * tests.sum(), 8 * visits.sum() + 3 * tests.sum()
+    assert 0.97 * lo <= reads <= 1.03 * hi, f"{reads} reads, mirror {lo}..{hi}"
+
+
 @pytest.mark.gpu
 def test_gpu_wide_bvhs_match_bvh_on_the_benchmark_views():
     """On the GPU machine, CUDA and NVIDIA OpenCL: the benchmark views' primary and diffuse rays at

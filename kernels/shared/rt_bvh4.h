@@ -25,9 +25,11 @@
  *
  * Box test: rt_bvh.h's fused form (one fma a plane, o inv moved outward by its rounding bound, zero
  * direction components as +-2^64 with the ray's length as pad), which keeps every box the exact test
- * keeps at any distance from the origin for coordinates up to 1e18 (the builder checks); with
- * RT_CONSERVATIVE the exit scaled by 1 + RT_T_PAD; boxes and pending children culled beyond t_cull of
- * the closest hit, the scalar BVH's pad, so ties at equal t reach the lower triangle id. */
+ * keeps at any distance from the origin for coordinates up to 1e18 (the builder checks), in the ray's
+ * own units (bvh4_ray: distances scaled by a power of two, exactly, so that the near planes clamp to
+ * [0, 1] in the fma); a child is hit where the sign of exit x (1 + RT_T_PAD) - entry is + (one fma,
+ * RT_CONSERVATIVE), and entered or pushed where its entry is no later than t_cut, t_cull of the closest
+ * hit (the scalar BVH's pad), so ties at equal t reach the lower triangle id. */
 #ifndef RT_BVH4_H
 #define RT_BVH4_H
 #include "rt_bvh8.h"
@@ -35,7 +37,7 @@
 #define BVH4_NODE_ROWS 7             /* float4 rows a node (sync with rtlab/accel/bvh4.py) */
 #define BVH4_LEAF_BITS 4             /* at most 15 triangles a leaf */
 #define BVH4_NONE (-2147483647 - 1)  /* no child: not a leaf ref (its row would be 2^27 - 1) */
-#define BVH4_MISS 0x7FFFFFFF         /* the sort key of a child not hit */
+#define BVH4_MISS 0xFFFFFFFFu        /* the sort key of a child not hit (bvh4_key) */
 
 /* A pending child: the row of the node that holds it and its sort key (bvh4_key: the entry distance's
  * bits with the child's slot in the two low bits) */
@@ -47,7 +49,7 @@ typedef struct {
 typedef struct {
     float3 inv;              /* 1/d, or +-2^64 where |d| <= RT_BVH_MIN_DIR (bvh_inverse) */
     float3 o_near, o_far;    /* o inv moved up (near planes) and down (far planes) by its rounding bound */
-    float tmin;              /* +0 for -0 (bvh_span_enter compares bit patterns) */
+    float scale;             /* 2^-k: the walk's distances are t scale, below 1/2 in the scene (bvh4_ray) */
     int near_x, near_y, near_z;   /* row of the near plane's float4 in a node: lo, or hi where inv < 0 */
 } Bvh4Ray;
 
@@ -65,26 +67,51 @@ RT_FN Bvh4Ray bvh4_ray(const Ray *ray, float t_exit)
     r.near_x = r.inv.x < 0.0f ? 1 : 0;
     r.near_y = r.inv.y < 0.0f ? 3 : 2;
     r.near_z = r.inv.z < 0.0f ? 5 : 4;
-    r.tmin = ray->tmin > 0.0f ? ray->tmin : 0.0f;
+    /* The walk's distances in units of 2^k >= t_pad (k >= 0: never scaled up, o inv could overflow), so
+     * that an entry distance clamped to [0, 1] (bvh4_near: one saturating fma) keeps every box the ray
+     * enters: a power of two scales every fma exactly, and no box in the scene ends beyond t_exit. */
+    int e = (rt_as_int(t_pad) >> 23) & 255;            /* t_pad < 2^(e - 126) */
+    int k = rt_imin(rt_imax(e - 126, 0), 125);
+    r.scale = rt_as_float((127 - k) << 23);
+    r.inv = mul3(r.inv, r.scale);
+    r.o_near = mul3(r.o_near, r.scale);
+    r.o_far = mul3(r.o_far, r.scale);
     return r;
 }
 
-/* Sort key of a child: its entry distance's bits (>= +0, so ordered as ints) with the slot in the two
- * low bits, or BVH4_MISS */
-RT_FN int bvh4_key(float tx0, float ty0, float tz0, float tx1, float ty1, float tz1, const Bvh4Ray *r, float t_cut,
-                   int slot)
+/* The closest hit's cut in the walk's units: t_cull(t_hit) scaled */
+RT_FN float bvh4_cut(const Bvh4Ray *r, float t_hit) { return t_cull(t_hit) * r->scale; }
+
+/* A near plane's distance clamped to [0, 1], +0 for -0 and NaN (ptxas: one FFMA.SAT with the fma). The
+ * clamp at 0 stands for tmin: a box whose segment ends before tmin may be entered, and its triangles'
+ * hits are refused by the test. */
+RT_FN float bvh4_near(float t) { return rt_min(t > 0.0f ? t : 0.0f, 1.0f); }
+
+/* Sort key of a child: its entry distance's bits (>= +0, so ordered as unsigned ints) with the slot in
+ * the two low bits; a child not hit gets every bit set (BVH4_MISS: the sign of exit - entry spread over
+ * the word), so misses sort last. The closest hit's cut is not in the key: a child hit beyond it sorts
+ * between the hits and the misses, and the walk compares keys with the cut where it enters or pushes a
+ * child (bvh4_hit_key), as the pop does. */
+RT_FN unsigned int bvh4_key(float tx0, float ty0, float tz0, float tx1, float ty1, float tz1, unsigned int slot)
 {
-    float t0 = bvh_span_enter(tx0, ty0, tz0, r->tmin);
-    float t1 = bvh_span_exit(tx1, ty1, tz1, t_cut);
+    float t0 = rt_as_float(rt_imax(rt_imax(rt_as_int(tx0), rt_as_int(ty0)), rt_as_int(tz0)));
+    float t1 = rt_as_float(rt_imin(rt_imin(rt_as_int(tx1), rt_as_int(ty1)), rt_as_int(tz1)));
 #if RT_CONSERVATIVE
-    t1 *= RT_BVH_EXIT_SCALE;
+    float gap = rt_fma(t1, RT_BVH_EXIT_SCALE, -t0);   /* one rounding: its sign is exact */
+#else
+    float gap = t1 - t0;
 #endif
-    return t0 <= t1 ? ((rt_as_int(t0) & ~3) | slot) : BVH4_MISS;
+    unsigned int miss = (unsigned int)(rt_as_int(gap) >> 31);
+    return ((unsigned int)rt_as_int(t0) & ~3u) | slot | miss;
 }
 
-RT_FN void bvh4_order(int *a, int *b)
+/* Whether a sorted key is a child to enter or push: hit, and entered no later than the cut (a float's
+ * bits | 3, the slot's bits) */
+RT_FN int bvh4_hit_key(unsigned int key, unsigned int cut) { return key <= cut; }
+
+RT_FN void bvh4_order(unsigned int *a, unsigned int *b)
 {
-    int lo = rt_imin(*a, *b), hi = rt_imax(*a, *b);
+    unsigned int lo = rt_imin(*a, *b), hi = rt_imax(*a, *b);
     *a = lo;
     *b = hi;
 }
@@ -100,14 +127,14 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     float4 nz = load_node_data(node_data, row + r->near_z), fz = load_node_data(node_data, row + (r->near_z ^ 1));
     float4 refs = load_node_data(node_data, row + 6);
     float3 a = r->inv, on = r->o_near, of = r->o_far;
-    int k0 = bvh4_key(rt_fma(nx.x, a.x, -on.x), rt_fma(ny.x, a.y, -on.y), rt_fma(nz.x, a.z, -on.z),
-                      rt_fma(fx.x, a.x, -of.x), rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), r, t_cut, 0);
-    int k1 = bvh4_key(rt_fma(nx.y, a.x, -on.x), rt_fma(ny.y, a.y, -on.y), rt_fma(nz.y, a.z, -on.z),
-                      rt_fma(fx.y, a.x, -of.x), rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), r, t_cut, 1);
-    int k2 = bvh4_key(rt_fma(nx.z, a.x, -on.x), rt_fma(ny.z, a.y, -on.y), rt_fma(nz.z, a.z, -on.z),
-                      rt_fma(fx.z, a.x, -of.x), rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), r, t_cut, 2);
-    int k3 = bvh4_key(rt_fma(nx.w, a.x, -on.x), rt_fma(ny.w, a.y, -on.y), rt_fma(nz.w, a.z, -on.z),
-                      rt_fma(fx.w, a.x, -of.x), rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), r, t_cut, 3);
+    unsigned int k0 = bvh4_key(bvh4_near(rt_fma(nx.x, a.x, -on.x)), bvh4_near(rt_fma(ny.x, a.y, -on.y)), bvh4_near(rt_fma(nz.x, a.z, -on.z)),
+                      rt_fma(fx.x, a.x, -of.x), rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), 0u);
+    unsigned int k1 = bvh4_key(bvh4_near(rt_fma(nx.y, a.x, -on.x)), bvh4_near(rt_fma(ny.y, a.y, -on.y)), bvh4_near(rt_fma(nz.y, a.z, -on.z)),
+                      rt_fma(fx.y, a.x, -of.x), rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), 1u);
+    unsigned int k2 = bvh4_key(bvh4_near(rt_fma(nx.z, a.x, -on.x)), bvh4_near(rt_fma(ny.z, a.y, -on.y)), bvh4_near(rt_fma(nz.z, a.z, -on.z)),
+                      rt_fma(fx.z, a.x, -of.x), rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), 2u);
+    unsigned int k3 = bvh4_key(bvh4_near(rt_fma(nx.w, a.x, -on.x)), bvh4_near(rt_fma(ny.w, a.y, -on.y)), bvh4_near(rt_fma(nz.w, a.z, -on.z)),
+                      rt_fma(fx.w, a.x, -of.x), rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), 3u);
     /* Sorting network of four keys: nearest in k0, misses last */
     bvh4_order(&k0, &k1);
     bvh4_order(&k2, &k3);
@@ -117,25 +144,27 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     /* The nearest child's ref, picked whether or not it is hit: used either way, the refs row's load
      * stays beside the planes' (in a branch, the compiler sinks it there, a second memory latency a
      * visit on the walk's path) */
-    int nearest = rt_as_int(get4(refs, k0 & 3));
-    if (k0 == BVH4_MISS)
+    unsigned int cut = (unsigned int)(rt_as_int(t_cut) | 3);
+    int nearest = rt_as_int(get4(refs, (int)(k0 & 3)));
+    if (!bvh4_hit_key(k0, cut))
         nearest = BVH4_NONE;
-    /* The others farthest first, where a second child is hit (misses sort last, so the hits are k1,
-     * k2, k3 in order: k3 and k2 are written and counted only if hit, the stack has 3 spare entries).
+    /* The others farthest first, where a second child is hit before the cut (misses, then children
+     * beyond the cut, sort last, so those to push are k1, k2, k3 in order: k3 and k2 are written and
+     * counted only if hit before the cut, the stack has 3 spare entries).
      * No ref is picked for them here (the pop reads it from the node). */
-    if (k1 != BVH4_MISS) {
+    if (bvh4_hit_key(k1, cut)) {
         int n = *sp;
         stack[n].row = row;
-        stack[n].key = k3;
-        n += k3 != BVH4_MISS;
+        stack[n].key = (int)k3;
+        n += bvh4_hit_key(k3, cut);
         stack[n].row = row;
-        stack[n].key = k2;
-        n += k2 != BVH4_MISS;
+        stack[n].key = (int)k2;
+        n += bvh4_hit_key(k2, cut);
         stack[n].row = row;
-        stack[n].key = k1;
+        stack[n].key = (int)k1;
         *sp = n + 1;
         top->row = row;
-        top->key = k1;
+        top->key = (int)k1;
     }
     return nearest;
 }
@@ -205,7 +234,7 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     int ref = 0;
     top.row = 0;
     top.key = 0;
-    float t_cut = t_cull(hit->t);      /* changes only where a leaf finds a hit */
+    float t_cut = bvh4_cut(&r, hit->t);      /* changes only where a leaf finds a hit */
     for (;;) {
         /* Inner nodes: enter the nearest child hit */
         while (ref >= 0)
@@ -214,7 +243,7 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
         if (ref != BVH4_NONE) {
             if (bvh4_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
                 return;
-            t_cut = t_cull(hit->t);
+            t_cut = bvh4_cut(&r, hit->t);
         }
         ref = bvh4_pop_top(RT_SCENE_ARGS, stack, &sp, t_cut, &top);
         if (ref == BVH4_NONE)
@@ -242,13 +271,13 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
 RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
 {
     Bvh4Entry unused_top;              /* this walk pops from memory (bvh4_pop_top says why) */
-    float t_cut = t_cull(s->hit.t);
+    float t_cut = bvh4_cut(&s->fused, s->hit.t);
     for (;;) {
         while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
             s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, t_cut, stack, &s->sp, &unused_top);
         if (s->ref != BVH4_NONE) {
             bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
-            t_cut = t_cull(s->hit.t);
+            t_cut = bvh4_cut(&s->fused, s->hit.t);
         }
         s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, t_cut);
         if (s->ref == BVH4_NONE)
