@@ -119,7 +119,7 @@ def test_refined_t_is_what_keeps_slivers_right(backend):
     assert counts[1] == (0, 0) and counts[0][0] > 0 and counts[0][1] > case.n_rays // 10, counts
 
 
-@pytest.mark.parametrize("traversal", ["stack", "bvh", "bvh-packet"])
+@pytest.mark.parametrize("traversal", ["stack", "bvh", "bvh-packet", "bvh4"])
 def test_tmin_just_before_a_grazing_sliver_keeps_it(backend, traversal):
     """Family 13's made slivers at grazing angles, traced with tmin 2e-5 of t before the float64 hit
     (the sliver must be hit) and 2e-5 after it (it must not be), on the rays where the kernel names
