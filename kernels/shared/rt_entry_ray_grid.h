@@ -43,12 +43,14 @@ RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(floa
 #if defined(RT_ORDERED_GRID_KERNEL) && RT_TRAVERSAL != RT_TRAVERSAL_PACKET
 /* trace_ray_grid with block b taking the tile tiles[b] (its column and row, in block units) in place of
  * its own: the host orders the tiles costliest first (rtlab.device.tile_orders), so a launch does not
- * end behind costly tiles started last. Only the library's program declares it: the labs' grid stays
- * the paper's. */
+ * end behind costly tiles started last. b counts blocks row by row of the launch's grid, whose width
+ * in blocks is ceil(width / block width) (read, not divided: the division was 30 instructions a
+ * thread on the tile's path). Only the library's program declares it: the labs' grid stays the
+ * paper's. */
 RT_KERNEL void trace_ray_grid_ordered(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions,
                                       RT_OUT(float4) hits, int width, int height, RT_IN(int2) tiles RT_WITH_FRAME)
 {
-    int2 tile = tiles[rt_group_id(1) * ((width + rt_local_size(0) - 1) / rt_local_size(0)) + rt_group_id(0)];
+    int2 tile = tiles[rt_group_id(1) * rt_num_groups(0) + rt_group_id(0)];
     int x, y;
     block_pixel(tile.x, tile.y, rt_local_size(0), rt_local_size(1), rt_local_id(0), rt_local_id(1), &x, &y);
     trace_image_ray(RT_SCENE_ARGS, rt_frame, origins, directions, hits, width, height, x, y);

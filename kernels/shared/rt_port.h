@@ -124,10 +124,12 @@ RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
     return __byte_perm(w, hi, 0x7604u | ((unsigned int)k << 4));
 }
 /* Thread indices of a launch of up to two dimensions (d = 0: x, 1: y), as ints: the thread in its
- * block, the block, threads a block, the thread in the launch (unsigned arithmetic, as CUDA's own) */
+ * block, the block, threads a block, blocks in the launch, the thread in the launch (unsigned
+ * arithmetic, as CUDA's own) */
 #define rt_local_id(d) ((int)((d) == 0 ? threadIdx.x : threadIdx.y))
 #define rt_group_id(d) ((int)((d) == 0 ? blockIdx.x : blockIdx.y))
 #define rt_local_size(d) ((int)((d) == 0 ? blockDim.x : blockDim.y))
+#define rt_num_groups(d) ((int)((d) == 0 ? gridDim.x : gridDim.y))
 #define rt_global_id(d) ((int)((d) == 0 ? blockIdx.x * blockDim.x + threadIdx.x : blockIdx.y * blockDim.y + threadIdx.y))
 /* this thread's index in the whole launch (x fastest, then y) */
 RT_FN unsigned int rt_item_index(void)
@@ -214,6 +216,7 @@ RT_FN unsigned int rt_byte_at_bits8(unsigned int w, int k, unsigned int hi)
 #define rt_local_id(d) ((int)get_local_id(d))
 #define rt_group_id(d) ((int)get_group_id(d))
 #define rt_local_size(d) ((int)get_local_size(d))
+#define rt_num_groups(d) ((int)get_num_groups(d))
 #define rt_global_id(d) ((int)get_global_id(d))
 RT_FN unsigned int rt_item_index(void)           /* this work-item's index in the whole launch */
 {
