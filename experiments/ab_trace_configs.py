@@ -13,7 +13,9 @@ direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, 
 direction's quantised spherical angles; ``tileWxH``, camera rays tile by tile, so trace() takes them
 as a list (trace_rays_fetch) in tiles; ``heavyP``, 8x4 tiles with the costliest P % first (heavy_first):
 what ordering could gain, the sort itself not timed; ``probeP``, the same ranked by one probe ray a tile;
-``odP``, ranked by the library's estimate from the camera and the BVH, overdraw_first),
+``odP``, ranked by the library's estimate from the camera and the BVH, overdraw_first; ``wheavyP``
+and ``wproxyP``, diffuse rays in warps of 32 with P % of the warps first, ranked by the host mirror's
+cost or by a grid estimate, warps_first),
 ``noorder`` (camera rays as plain arrays: row order, no tile order, rtlab.device.tile_orders),
 ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
@@ -49,7 +51,7 @@ def parse_config(text: str, base):
             defines["nofetch"] = 1
         elif p == "noorder":
             defines["noorder"] = 1
-        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy", "sortprobe", "sortod")):
+        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy", "sortprobe", "sortod", "sortwheavy", "sortwproxy")):
             defines["sort"] = p[4:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
@@ -150,6 +152,8 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
         return heavy_first(float(kind[5:]), origins, directions, probe=True)
     if kind.startswith("od"):
         return overdraw_first(float(kind[2:]), origins)
+    if kind.startswith("wheavy") or kind.startswith("wproxy"):
+        return warps_first(kind[:6], float(kind[6:]), origins, directions)
     d = np.asarray(directions, np.float64)
     octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
     if kind == "oct":
@@ -163,6 +167,34 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
     phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
     key = (theta * 1023).astype(np.uint64) << 10 | (phi * 1023).astype(np.uint64)
     return np.argsort(octant << 20 | key, kind="stable")
+
+
+def warps_first(rank: str, percent: float, origins, directions) -> np.ndarray:
+    """Rays in no image order (diffuse) in groups of 32 as given, the ``percent`` % of the groups ranked
+    first moved to the front (ranked order), the rest as given: ``wheavy`` ranks a group by its costliest
+    ray on the host mirror of the 4-wide walk (an oracle: what starting the costliest rays first could
+    gain against the ray fetch's tail), ``wproxy`` by the triangles in the grid cells along its rays
+    (experiments/diffuse_cost_proxies.py: an estimate a device could make before the walk)."""
+    from diffuse_cost_proxies import NODE_INSTR, TRI_INSTR, WARP, proxies
+    from rtlab.accel.bvh4 import load_or_build_bvh4
+    from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
+    scene = HEAVY_SCENE["scene"]
+    o, d = np.asarray(origins, np.float64), np.asarray(directions, np.float64)
+    if rank == "wheavy":
+        b, _ = load_or_build_bvh4(scene.vertices, scene.faces)
+        nodes, _, tris = traversal_counts_bvh4(b, scene.vertices, scene.faces, o, d)[:3]
+        ray_key = NODE_INSTR * np.asarray(nodes, np.float64) + TRI_INSTR * np.asarray(tris, np.float64)
+    else:
+        ray_key = proxies(scene, o, d)["triangles along ray"]
+    n = len(o)
+    groups = -(-n // WARP)
+    key = np.zeros(groups * WARP)
+    key[:n] = ray_key
+    key = key.reshape(groups, WARP).max(1) if rank == "wheavy" else key.reshape(groups, WARP).sum(1)
+    heavy = np.argsort(-key, kind="stable")[:int(round(groups * percent / 100))]
+    order = np.concatenate([heavy, np.setdiff1d(np.arange(groups), heavy)])
+    rays = (order[:, None] * WARP + np.arange(WARP)).ravel()
+    return rays[rays < n]
 
 
 class Unpermuted:
