@@ -28,7 +28,7 @@
  * keeps at any distance from the origin for coordinates up to 1e18 (the builder checks), in the ray's
  * own units (bvh4_ray: distances scaled by a power of two, exactly, so that the near planes clamp to
  * [0, 1] in the fma); a child is hit where the sign of exit x (1 + RT_T_PAD) - entry is + (one fma,
- * RT_CONSERVATIVE), and entered or pushed where its entry is no later than t_cut, t_cull of the closest
+ * RT_CONSERVATIVE), and entered or pushed where its entry is no later than the cut, t_cull of the closest
  * hit (the scalar BVH's pad), so ties at equal t reach the lower triangle id. */
 #ifndef RT_BVH4_H
 #define RT_BVH4_H
@@ -79,9 +79,14 @@ RT_FN Bvh4Ray bvh4_ray(const Ray *ray, float t_exit)
     return r;
 }
 
-/* The closest hit's cut in the walk's units: t_cull(t_hit) scaled (exactly, down to 2^-126: a hit
- * closer than 2^-125 t_exit would be cut at a denormal, whose rounding t_cull's pad does not cover) */
-RT_FN float bvh4_cut(const Bvh4Ray *r, float t_hit) { return t_cull(t_hit) * r->scale; }
+/* The closest hit's cut as a key: t_cull(t_hit) in the walk's units, its bits | 3 (a key's slot bits),
+ * so that a key is a child entered no later than the cut where key <= cut as unsigned ints (keys of
+ * entries >= +0 order as their floats). The scale is exact down to 2^-126: a hit closer than 2^-125
+ * t_exit would be cut at a denormal, whose rounding t_cull's pad does not cover. */
+RT_FN unsigned int bvh4_cut(const Bvh4Ray *r, float t_hit)
+{
+    return (unsigned int)(rt_as_int(t_cull(t_hit) * r->scale) | 3);
+}
 
 /* A near plane's distance clamped to [0, 1], +0 for -0 and NaN (ptxas: one FFMA.SAT with the fma). The
  * clamp at 0 stands for tmin: a box whose segment ends before tmin may be entered, and its triangles'
@@ -117,10 +122,10 @@ RT_FN void bvh4_order(unsigned int *a, unsigned int *b)
     *b = hi;
 }
 
-/* Test the four children of the node at row `row`; push all hit but the nearest (farthest first) and
- * return the nearest, or BVH4_NONE when none is hit. *top gets a copy of the stack's top entry where
+/* Test the four children of the node at row `row`; push all hit within the cut (bvh4_cut) but the
+ * nearest (farthest first) and return the nearest, or BVH4_NONE when none is. *top gets a copy of the stack's top entry where
  * it changes (bvh4_pop_top). */
-RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bvh4Entry *stack, int *sp,
+RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cut, Bvh4Entry *stack, int *sp,
                      Bvh4Entry *top)
 {
     float4 nx = load_node_data(node_data, row + r->near_x), fx = load_node_data(node_data, row + (r->near_x ^ 1));
@@ -145,7 +150,6 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, float t_cut, Bv
     /* The nearest child's ref, picked whether or not it is hit: used either way, the refs row's load
      * stays beside the planes' (in a branch, the compiler sinks it there, a second memory latency a
      * visit on the walk's path) */
-    unsigned int cut = (unsigned int)(rt_as_int(t_cut) | 3);
     int nearest = rt_as_int(get4(refs, (int)(k0 & 3)));
     if (!bvh4_hit_key(k0, cut))
         nearest = BVH4_NONE;
@@ -176,16 +180,15 @@ RT_FN int bvh4_entry_ref(RT_SCENE_PARAMS, Bvh4Entry e)
     return load_node_word(node_data, 4 * (e.row + 6) + (e.key & 3));
 }
 
-/* The most recent pending child that may still hold a hit as close as t_cut, t_cull of the closest hit
- * so far (keys of entry distances >= +0 order as ints; (key & ~3) <= t_cut as bits is key <= t_cut | 3),
+/* The most recent pending child that may still hold a hit as close as the closest hit so far (its
+ * key within the cut, bvh4_cut),
  * or BVH4_NONE */
-RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut)
+RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, unsigned int cut)
 {
-    int cut = rt_as_int(t_cut) | 3;
     while (*sp > 0) {
         --*sp;
         Bvh4Entry e = stack[*sp];
-        if (e.key <= cut)
+        if (bvh4_hit_key((unsigned int)e.key, cut))
             return bvh4_entry_ref(RT_SCENE_ARGS, e);
     }
     return BVH4_NONE;
@@ -195,15 +198,14 @@ RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut
  * needs no local-memory read, and the read of the entry below it is issued here and waited for only
  * at the next pop. The closest-hit walk (camera rays) gains by it; the ray fetch's walk, whose state
  * outlives each refill, lost by it and pops from memory (docs/results.md has both A/Bs). */
-RT_FN int bvh4_pop_top(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, float t_cut, Bvh4Entry *top)
+RT_FN int bvh4_pop_top(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, unsigned int cut, Bvh4Entry *top)
 {
-    int cut = rt_as_int(t_cut) | 3;
     while (*sp > 0) {
         --*sp;
         Bvh4Entry e = *top;
         if (*sp > 0)
             *top = stack[*sp - 1];
-        if (e.key <= cut)
+        if (bvh4_hit_key((unsigned int)e.key, cut))
             return bvh4_entry_ref(RT_SCENE_ARGS, e);
     }
     return BVH4_NONE;
@@ -235,18 +237,18 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     int ref = 0;
     top.row = 0;
     top.key = 0;
-    float t_cut = bvh4_cut(&r, hit->t);      /* changes only where a leaf finds a hit */
+    unsigned int cut = bvh4_cut(&r, hit->t);      /* changes only where a leaf finds a hit */
     for (;;) {
         /* Inner nodes: enter the nearest child hit */
         while (ref >= 0)
-            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, t_cut, stack, &sp, &top);
+            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, cut, stack, &sp, &top);
         /* A leaf: its triangles' rows */
         if (ref != BVH4_NONE) {
             if (bvh4_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
                 return;
-            t_cut = bvh4_cut(&r, hit->t);
+            cut = bvh4_cut(&r, hit->t);
         }
-        ref = bvh4_pop_top(RT_SCENE_ARGS, stack, &sp, t_cut, &top);
+        ref = bvh4_pop_top(RT_SCENE_ARGS, stack, &sp, cut, &top);
         if (ref == BVH4_NONE)
             return;
     }
@@ -272,15 +274,15 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
 RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
 {
     Bvh4Entry unused_top;              /* this walk pops from memory (bvh4_pop_top says why) */
-    float t_cut = bvh4_cut(&s->fused, s->hit.t);
+    unsigned int cut = bvh4_cut(&s->fused, s->hit.t);
     for (;;) {
         while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
-            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, t_cut, stack, &s->sp, &unused_top);
+            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
         if (s->ref != BVH4_NONE) {
             bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
-            t_cut = bvh4_cut(&s->fused, s->hit.t);
+            cut = bvh4_cut(&s->fused, s->hit.t);
         }
-        s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, t_cut);
+        s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
         if (s->ref == BVH4_NONE)
             s->ref = BVH_DONE;
         if (s->ref == BVH_DONE || rt_warp_active() < RT_FETCH_THRESHOLD)
