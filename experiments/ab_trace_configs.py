@@ -17,12 +17,15 @@ what ordering could gain, the sort itself not timed; ``probeP``, the same ranked
 and ``wproxyP``, diffuse rays in warps of 32 with P % of the warps first, ranked by the host mirror's
 cost or by a grid estimate, warps_first),
 ``noorder`` (camera rays as plain arrays: row order, no tile order, rtlab.device.tile_orders),
-``D=V`` (any -D). Time: median over the rounds of each round's best of
+``tree=DIR`` (the kernel sources of DIR, or of DIR/kernels: another commit's tree timed against
+the project's on the same rays), ``D=V`` (any -D). Time: median over the rounds of each round's best of
 --repeats launches. Primary rays go in tiles (trace(width=)), as the bench's do.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+from pathlib import Path
 from unittest import mock
 
 import numpy as np
@@ -31,6 +34,7 @@ from rtlab.backends import get_backend
 from rtlab.benches.rays import make_rays, peer_figures
 from rtlab.device import tracing
 from rtlab.device.tracing import default_variant, trace
+from rtlab.paths import use_kernel_dir
 from rtlab.reference import compare_hits
 
 
@@ -53,6 +57,8 @@ def parse_config(text: str, base):
             defines["noorder"] = 1
         elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy", "sortprobe", "sortod", "sortwheavy", "sortwproxy")):
             defines["sort"] = p[4:]
+        elif p.startswith("tree="):
+            defines["tree"] = p[5:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
         elif "=" in p:
@@ -206,6 +212,20 @@ class Unpermuted:
         self.t[perm] = r.t
 
 
+@contextlib.contextmanager
+def kernel_tree(root: str | None):
+    """Compile from the kernel sources at ``root`` (another commit's kernels/, e.g. from `git archive
+    COMMIT kernels | tar -x -C DIR`) inside, from the project's outside; None: the project's."""
+    if root is None:
+        yield
+        return
+    previous = use_kernel_dir(Path(root) / "kernels" if (Path(root) / "kernels").is_dir() else root)
+    try:
+        yield
+    finally:
+        use_kernel_dir(previous)
+
+
 def carveout(backend, percent: int):
     """CUDA only: every kernel launched inside prefers ``percent`` of the SM's L1/shared memory as
     shared memory (CU_FUNC_ATTRIBUTE_PREFERRED_SHARED_MEMORY_CARVEOUT; -1 the driver's choice, 0 the
@@ -265,7 +285,7 @@ def main(argv=None) -> None:
         perms = {c: ray_order(d["sort"], batch.origins, batch.directions) for c, _, d in configs if "sort" in d}
         for _ in range(a.rounds):
             for c, variant, defines in configs:
-                d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort", "noorder")}
+                d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort", "noorder", "tree")}
                 perm = perms.get(c)
                 o, dirs = (batch.origins, batch.directions) if perm is None else \
                     (np.ascontiguousarray(batch.origins[perm]), np.ascontiguousarray(batch.directions[perm]))
@@ -273,7 +293,7 @@ def main(argv=None) -> None:
                     o, dirs = np.asarray(o).view(np.ndarray), np.asarray(dirs).view(np.ndarray)
                 with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
                                        else tracing.fetches_rays), \
-                        carveout(backend, defines.get("carveout", -1)):
+                        carveout(backend, defines.get("carveout", -1)), kernel_tree(defines.get("tree")):
                     r = trace(batch.scene, o, dirs, backend, variant, repeats=a.repeats, warmup=1,
                               width=None if (a.rows or perm is not None) else width, defines=d)
                 best[c].append(min(r.launches_ms))
