@@ -123,8 +123,8 @@ RT_FN void bvh4_order(unsigned int *a, unsigned int *b)
 }
 
 /* Test the four children of the node at row `row`; push all hit within the cut (bvh4_cut) but the
- * nearest (farthest first) and return the nearest, or BVH4_NONE when none is. *top gets a copy of the stack's top entry where
- * it changes (bvh4_pop_top). */
+ * nearest (farthest first) and return the nearest, or BVH4_NONE when none is. *top gets a copy of the
+ * stack's top entry where it changes (bvh4_pop_top). */
 RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cut, Bvh4Entry *stack, int *sp,
                      Bvh4Entry *top)
 {
@@ -133,14 +133,18 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cu
     float4 nz = load_node_data(node_data, row + r->near_z), fz = load_node_data(node_data, row + (r->near_z ^ 1));
     float4 refs = load_node_data(node_data, row + 6);
     float3 a = r->inv, on = r->o_near, of = r->o_far;
-    unsigned int k0 = bvh4_key(bvh4_near(rt_fma(nx.x, a.x, -on.x)), bvh4_near(rt_fma(ny.x, a.y, -on.y)), bvh4_near(rt_fma(nz.x, a.z, -on.z)),
-                      rt_fma(fx.x, a.x, -of.x), rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), 0u);
-    unsigned int k1 = bvh4_key(bvh4_near(rt_fma(nx.y, a.x, -on.x)), bvh4_near(rt_fma(ny.y, a.y, -on.y)), bvh4_near(rt_fma(nz.y, a.z, -on.z)),
-                      rt_fma(fx.y, a.x, -of.x), rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), 1u);
-    unsigned int k2 = bvh4_key(bvh4_near(rt_fma(nx.z, a.x, -on.x)), bvh4_near(rt_fma(ny.z, a.y, -on.y)), bvh4_near(rt_fma(nz.z, a.z, -on.z)),
-                      rt_fma(fx.z, a.x, -of.x), rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), 2u);
-    unsigned int k3 = bvh4_key(bvh4_near(rt_fma(nx.w, a.x, -on.x)), bvh4_near(rt_fma(ny.w, a.y, -on.y)), bvh4_near(rt_fma(nz.w, a.z, -on.z)),
-                      rt_fma(fx.w, a.x, -of.x), rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), 3u);
+    unsigned int k0 = bvh4_key(bvh4_near(rt_fma(nx.x, a.x, -on.x)), bvh4_near(rt_fma(ny.x, a.y, -on.y)),
+                               bvh4_near(rt_fma(nz.x, a.z, -on.z)), rt_fma(fx.x, a.x, -of.x),
+                               rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), 0u);
+    unsigned int k1 = bvh4_key(bvh4_near(rt_fma(nx.y, a.x, -on.x)), bvh4_near(rt_fma(ny.y, a.y, -on.y)),
+                               bvh4_near(rt_fma(nz.y, a.z, -on.z)), rt_fma(fx.y, a.x, -of.x),
+                               rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), 1u);
+    unsigned int k2 = bvh4_key(bvh4_near(rt_fma(nx.z, a.x, -on.x)), bvh4_near(rt_fma(ny.z, a.y, -on.y)),
+                               bvh4_near(rt_fma(nz.z, a.z, -on.z)), rt_fma(fx.z, a.x, -of.x),
+                               rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), 2u);
+    unsigned int k3 = bvh4_key(bvh4_near(rt_fma(nx.w, a.x, -on.x)), bvh4_near(rt_fma(ny.w, a.y, -on.y)),
+                               bvh4_near(rt_fma(nz.w, a.z, -on.z)), rt_fma(fx.w, a.x, -of.x),
+                               rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), 3u);
     /* Sorting network of four keys: nearest in k0, misses last */
     bvh4_order(&k0, &k1);
     bvh4_order(&k2, &k3);
