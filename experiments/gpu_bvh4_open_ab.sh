@@ -1,0 +1,44 @@
+#!/bin/bash
+# A/B on the GPU of the 4-wide walk's changes that no GPU has timed yet, configurations alternating
+# round by round on the same rays (ab_trace_configs.py), each part's table under $OUT.
+# Usage (device run, carry .device):  source .device/setup.sh && bash experiments/gpu_bvh4_open_ab.sh [PART ...]
+#   untimed    the tree against the kernels the last bench timed: BASE_TREE (a folder holding kernels/,
+#              made before the run with `git archive 95d4399 kernels | tar -x -C .device/base_tree`),
+#              camera rays at 1024² and 2048², diffuse rays at 1024², CUDA and NVIDIA OpenCL
+#   shear      experiments/prototypes/fetch_shear_per_ray.patch applied to a copy of the tree: the ray
+#              fetch's watertight axes and shear as in the tree (RT_BVH4_AXES=0), once a ray (1), once a
+#              leaf (2); diffuse rays at 1024², CUDA and NVIDIA OpenCL
+#   tailorder  diffuse rays with the costliest warps first, ranked by the host mirror (sortwheavyP: the
+#              bound) or by the grid estimate (sortwproxyP), the permutation not timed; CUDA
+set -u
+OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+cd "$ROOT/experiments"
+V5=bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside
+R="--rounds 3 --repeats 5"
+BASE_TREE=${BASE_TREE:-$ROOT/.device/base_tree}
+[ $# -gt 0 ] || set -- untimed shear tailorder
+for part in "$@"; do
+  case $part in
+    untimed)
+      [ -d "$BASE_TREE/kernels" ] || { echo "no $BASE_TREE/kernels (see the usage above)"; continue; }
+      for be in "--backend cuda" "--backend opencl --device NVIDIA"; do
+        timeout 150 python ab_trace_configs.py $be $R --kinds primary,diffuse --size 1024 \
+          --configs "bvh4,tree=$BASE_TREE;bvh4"
+        timeout 90 python ab_trace_configs.py $be $R --kinds primary --size 2048 \
+          --configs "bvh4,tree=$BASE_TREE;bvh4"
+      done ;;
+    shear)
+      tree=$(mktemp -d)
+      cp -r "$ROOT/kernels" "$tree/" && patch -s -p1 -d "$tree" < "$ROOT/experiments/prototypes/fetch_shear_per_ray.patch" \
+        || { echo "the shear patch does not apply"; continue; }
+      for be in "--backend cuda" "--backend opencl --device NVIDIA"; do
+        timeout 150 python ab_trace_configs.py $be $R --kinds diffuse --size 1024 --views $V5 \
+          --configs "bvh4;bvh4,tree=$tree,RT_BVH4_AXES=0;bvh4,tree=$tree,RT_BVH4_AXES=1;bvh4,tree=$tree,RT_BVH4_AXES=2"
+      done ;;
+    tailorder)
+      timeout 300 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 \
+        --configs "bvh4;bvh4,sortwheavy10;bvh4,sortwheavy30;bvh4,sortwproxy10;bvh4,sortwproxy30" ;;
+  esac > "$OUT/ab_$part.txt" 2>&1
+  echo "== $part (exit $?)"; grep "^|\|^device\|does not\|^no " "$OUT/ab_$part.txt"
+done
