@@ -91,14 +91,24 @@ RT_FN BvhRay bvh_ray(const Ray *ray, float t_exit)
  * every one of those. The entry includes tmin >= +0, so it is the true maximum. The exit is the
  * true minimum where that is >= +0, and negative where that is negative (the box is behind: culled
  * either way); -0 reads as below everything, which can only keep a box. */
+RT_FN float bvh_max3(float a, float b, float c)
+{
+    return rt_as_float(rt_imax(rt_imax(rt_as_int(a), rt_as_int(b)), rt_as_int(c)));
+}
+
+RT_FN float bvh_min3(float a, float b, float c)
+{
+    return rt_as_float(rt_imin(rt_imin(rt_as_int(a), rt_as_int(b)), rt_as_int(c)));
+}
+
 RT_FN float bvh_span_enter(float a, float b, float c, float tmin)
 {
-    return rt_as_float(rt_imax(rt_imax(rt_imax(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(tmin)));
+    return rt_as_float(rt_imax(rt_as_int(bvh_max3(a, b, c)), rt_as_int(tmin)));
 }
 
 RT_FN float bvh_span_exit(float a, float b, float c, float t_hit)
 {
-    return rt_as_float(rt_imin(rt_imin(rt_imin(rt_as_int(a), rt_as_int(b)), rt_as_int(c)), rt_as_int(t_hit)));
+    return rt_as_float(rt_imin(rt_as_int(bvh_min3(a, b, c)), rt_as_int(t_hit)));
 }
 
 /* Whether the ray's segment meets the child box [lo, hi] up to t_cut, t_cull of the closest hit so

@@ -93,15 +93,19 @@ RT_FN unsigned int bvh4_cut(const Bvh4Ray *r, float t_hit)
  * hits are refused by the test. */
 RT_FN float bvh4_near(float t) { return rt_min(t > 0.0f ? t : 0.0f, 1.0f); }
 
-/* Sort key of a child: its entry distance's bits (>= +0, so ordered as unsigned ints) with the slot in
- * the two low bits; a child not hit gets every bit set (BVH4_MISS: the sign of exit - entry spread over
- * the word), so misses sort last. The closest hit's cut is not in the key: a child hit beyond it sorts
- * between the hits and the misses, and the walk compares keys with the cut where it enters or pushes a
- * child (bvh4_hit_key), as the pop does. */
-RT_FN unsigned int bvh4_key(float tx0, float ty0, float tz0, float tx1, float ty1, float tz1, unsigned int slot)
+/* Sort key of child `slot` from its near planes (nx, ny, nz) and far planes (fx, fy, fz): its entry
+ * distance's bits (>= +0, so ordered as unsigned ints) with the slot in the two low bits; a child not
+ * hit gets every bit set (BVH4_MISS: the sign of exit - entry spread over the word), so misses sort
+ * last. The closest hit's cut is not in the key: a child hit beyond it sorts between the hits and the
+ * misses, and the walk compares keys with the cut where it enters or pushes a child (bvh4_hit_key), as
+ * the pop does. */
+RT_FN unsigned int bvh4_key(float nx, float ny, float nz, float fx, float fy, float fz, const Bvh4Ray *r,
+                            unsigned int slot)
 {
-    float t0 = rt_as_float(rt_imax(rt_imax(rt_as_int(tx0), rt_as_int(ty0)), rt_as_int(tz0)));
-    float t1 = rt_as_float(rt_imin(rt_imin(rt_as_int(tx1), rt_as_int(ty1)), rt_as_int(tz1)));
+    float3 a = r->inv, on = r->o_near, of = r->o_far;
+    float t0 = bvh_max3(bvh4_near(rt_fma(nx, a.x, -on.x)), bvh4_near(rt_fma(ny, a.y, -on.y)),
+                        bvh4_near(rt_fma(nz, a.z, -on.z)));
+    float t1 = bvh_min3(rt_fma(fx, a.x, -of.x), rt_fma(fy, a.y, -of.y), rt_fma(fz, a.z, -of.z));
 #if RT_CONSERVATIVE
     float gap = rt_fma(t1, RT_BVH_EXIT_SCALE, -t0);   /* one rounding: its sign is exact */
 #else
@@ -132,19 +136,10 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cu
     float4 ny = load_node_data(node_data, row + r->near_y), fy = load_node_data(node_data, row + (r->near_y ^ 1));
     float4 nz = load_node_data(node_data, row + r->near_z), fz = load_node_data(node_data, row + (r->near_z ^ 1));
     float4 refs = load_node_data(node_data, row + 6);
-    float3 a = r->inv, on = r->o_near, of = r->o_far;
-    unsigned int k0 = bvh4_key(bvh4_near(rt_fma(nx.x, a.x, -on.x)), bvh4_near(rt_fma(ny.x, a.y, -on.y)),
-                               bvh4_near(rt_fma(nz.x, a.z, -on.z)), rt_fma(fx.x, a.x, -of.x),
-                               rt_fma(fy.x, a.y, -of.y), rt_fma(fz.x, a.z, -of.z), 0u);
-    unsigned int k1 = bvh4_key(bvh4_near(rt_fma(nx.y, a.x, -on.x)), bvh4_near(rt_fma(ny.y, a.y, -on.y)),
-                               bvh4_near(rt_fma(nz.y, a.z, -on.z)), rt_fma(fx.y, a.x, -of.x),
-                               rt_fma(fy.y, a.y, -of.y), rt_fma(fz.y, a.z, -of.z), 1u);
-    unsigned int k2 = bvh4_key(bvh4_near(rt_fma(nx.z, a.x, -on.x)), bvh4_near(rt_fma(ny.z, a.y, -on.y)),
-                               bvh4_near(rt_fma(nz.z, a.z, -on.z)), rt_fma(fx.z, a.x, -of.x),
-                               rt_fma(fy.z, a.y, -of.y), rt_fma(fz.z, a.z, -of.z), 2u);
-    unsigned int k3 = bvh4_key(bvh4_near(rt_fma(nx.w, a.x, -on.x)), bvh4_near(rt_fma(ny.w, a.y, -on.y)),
-                               bvh4_near(rt_fma(nz.w, a.z, -on.z)), rt_fma(fx.w, a.x, -of.x),
-                               rt_fma(fy.w, a.y, -of.y), rt_fma(fz.w, a.z, -of.z), 3u);
+    unsigned int k0 = bvh4_key(nx.x, ny.x, nz.x, fx.x, fy.x, fz.x, r, 0u);
+    unsigned int k1 = bvh4_key(nx.y, ny.y, nz.y, fx.y, fy.y, fz.y, r, 1u);
+    unsigned int k2 = bvh4_key(nx.z, ny.z, nz.z, fx.z, fy.z, fz.z, r, 2u);
+    unsigned int k3 = bvh4_key(nx.w, ny.w, nz.w, fx.w, fy.w, fz.w, r, 3u);
     /* Sorting network of four keys: nearest in k0, misses last */
     bvh4_order(&k0, &k1);
     bvh4_order(&k2, &k3);
