@@ -1,7 +1,7 @@
 """Could a cheap per-ray estimate start the costliest diffuse rays first (and so shorten the ray fetch's
 tail, docs/results.md "The ray fetch's tail")? Host-only: each diffuse ray's cost from the float64 mirror
-of the 4-wide walk (node visits x 109 + triangle tests x 70, the SASS instruction counts of the kept
-node loop and leaf test), against proxies a device could compute before the walk, and what ordering
+of the 4-wide walk (node visits x NODE_INSTR + triangle tests x TRI_INSTR: about the SASS instructions
+of a node visit and a triangle test, `nvcc_kernel_report.py --node-loop 7`), against proxies a device could compute before the walk, and what ordering
 warps (groups of 32 consecutive rays, as the fetch takes them) by each would leave at the end of the
 launch, where the tail is.
 

@@ -63,21 +63,17 @@ def node_loop(instructions: list[tuple[int, str]], wide_loads: int) -> tuple[int
     return len(best), sum(n for op, n in ops.items() if op in NARROW_PIPE), ops
 
 
-LAST_SASS: dict = {}
-
-
-def sass_counts(cubin: Path, dump: Path | None = None) -> dict[str, int]:
-    """Instructions per kernel in the cubin's SASS; the listing written to ``dump`` when given."""
+def sass_listing(cubin: Path, dump: Path | None = None) -> str:
+    """The cubin's SASS listing (cuobjdump -sass), also written to ``dump`` when given."""
     text = subprocess.run(["cuobjdump", "-sass", str(cubin)], capture_output=True, text=True, check=True).stdout
-    LAST_SASS["text"] = text
     if dump is not None:
         dump.write_text(text)
-    out: dict[str, int] = {}
-    for chunk in re.split(r"(?=\s+Function : )", text):
-        m = re.search(r"Function : (\w+)", chunk)
-        if m:
-            out[m.group(1)] = len(re.findall(r"/\*[0-9a-f]{4,}\*/\s+[^;]*;", chunk))
-    return out
+    return text
+
+
+def sass_counts(text: str) -> dict[str, int]:
+    """Instructions per kernel in a SASS listing."""
+    return {name: len(ins) for name, ins in sass_functions(text).items()}
 
 
 def report(source: Path, variant: Variant, extra: dict, sass_dir: Path | None = None, wide_loads: int = 0) -> list[str]:
@@ -94,9 +90,9 @@ def report(source: Path, variant: Variant, extra: dict, sass_dir: Path | None = 
         if sass_dir is not None:
             sass_dir.mkdir(parents=True, exist_ok=True)
             dump = sass_dir / f"{source.stem}-{variant.label().replace('/', '-')}.sass"
-        sass = sass_counts(cubin, dump)
-    loops = {name: node_loop(ins, wide_loads) for name, ins in sass_functions(LAST_SASS["text"]).items()} \
-        if wide_loads else {}
+        text = sass_listing(cubin, dump)
+    sass = sass_counts(text)
+    loops = {name: node_loop(ins, wide_loads) for name, ins in sass_functions(text).items()} if wide_loads else {}
     lines = []
     for name, r in sorted(res.items()):
         line = (f"{source.name:22} {variant.label():38} {name:26} {r.registers:4} regs {r.local_bytes:5} B stack "
