@@ -293,6 +293,33 @@ def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, 
     assert cmp.n_mismatch == 0, cmp.summary()
 
 
+@pytest.mark.parametrize("traversal", ["bvh", "bvh4"])
+def test_a_student_tree_keeps_trace_hits_on_a_device_with_warps(backend, traversal, tmp_path, monkeypatch):
+    """A student tree stubs the course's own regions, among them the binary BVH's walk as resumable steps
+    (the ray fetch's): there trace() on a device with warps walks with trace_rays instead, and with either
+    default traversal its hits stay the reference's, through the lab steps the student has passed."""
+    from rtlab.course.kernel_sources import copy_stubbed
+    from rtlab.device import tracing
+    from rtlab.paths import REFERENCE_KERNEL_DIR, use_kernel_dir
+    scene = rtlab.load_scene("default", size=24)
+    o, d = camera_rays(scene.camera)
+    first = reference_trace(scene.vertices, scene.faces, o, d)
+    bo, bd = diffuse_rays(scene, o, d, first.t, first.tri)
+    variant = Variant(traversal=traversal, intersection="watertight")
+    monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: True)
+    copy_stubbed(REFERENCE_KERNEL_DIR, tmp_path / "kernels", "05_kernel_tree")   # a lab 05 student's tree
+    before = use_kernel_dir(tmp_path / "kernels")
+    try:
+        fetched = tracing.fetches_rays(backend, variant, "library_trace")
+        hits = trace(scene, bo, bd, backend, variant)
+    finally:
+        use_kernel_dir(before)
+    assert fetched == (traversal == "bvh4"), "the 4-wide fetch walk reads no course region; the binary one does"
+    cmp = compare_hits(reference_trace(scene.vertices, scene.faces, bo, bd), hits.tri, hits.t, scene.vertices,
+                       scene.faces, bo, bd)
+    assert cmp.n_mismatch == 0, cmp.summary()
+
+
 def test_rays_are_fetched_only_by_the_library_where_the_device_has_warps(backend):
     from rtlab.device.tracing import fetches_rays
     bvh = Variant(traversal="bvh", intersection="watertight", block=(8, 16))
