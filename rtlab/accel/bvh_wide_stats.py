@@ -181,11 +181,13 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
     return n_nodes, n_boxes, n_tris, hit_tri, hit_t
 
 
-def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0):
-    """_count_bvh4 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
+def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0, planes=None):
+    """_count_bvh4 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray.
+    ``planes``: other child boxes for the same tree, laid out as Bvh4.planes() (default: b's own)."""
     bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
-    return _count_bvh4(b.planes().astype(np.float64), b.refs().astype(np.int64), np.asarray(b.tri_ids, np.int64),
+    planes = b.planes() if planes is None else planes
+    return _count_bvh4(np.asarray(planes, np.float64), b.refs().astype(np.int64), np.asarray(b.tri_ids, np.int64),
                        b.tri_row0, np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
                        bounds[0] - pad, bounds[1] + pad, int(b.depth), np.asarray(origins, np.float32).astype(np.float64),
                        np.asarray(directions, np.float32).astype(np.float64), float(tmin), BVH4_NODE_ROWS, TRI_ROWS,
