@@ -27,9 +27,16 @@ from rtlab.reference import reference_trace
 from rtlab.scene.model import camera_rays
 
 
-def quantised_planes(planes: np.ndarray) -> np.ndarray:
+def _half_down(x: np.ndarray) -> np.ndarray:
+    """x rounded down to a half (float16), as float64"""
+    h = x.astype(np.float16)
+    return np.where(h > x, np.nextafter(h, np.float16(-np.inf)), h).astype(np.float64)
+
+
+def quantised_planes(planes: np.ndarray, form: str = "8bit") -> np.ndarray:
     """(M, 6, 4) planes (lo.x, hi.x, lo.y, hi.y, lo.z, hi.z of four slots; empty slots lo = +inf) with each
-    valid child's planes rounded outward to 8-bit steps of its node's box, as float64."""
+    valid child's planes rounded outward on its node's box, as float64: "8bit", counts of the smallest
+    power-of-two step with 255 across the box; "half", fractions of the box in float16."""
     p = planes.astype(np.float64)
     out = p.copy()
     valid = p[:, 0, :] <= p[:, 1, :]
@@ -42,14 +49,20 @@ def quantised_planes(planes: np.ndarray) -> np.ndarray:
         low32 = np.where(low32 > node_lo, np.nextafter(low32, np.float32(-np.inf)), low32)
         node_lo = low32.astype(np.float64)
         extent = np.maximum(np.where(np.isfinite(node_hi), node_hi, 0.0) - node_lo, 0.0)
-        # the smallest power of two with 255 steps covering the extent (a node of zero extent: any step)
-        e = np.ceil(np.log2(np.maximum(extent, 1e-30) / 255.0))
-        step = np.exp2(e)
-        q_lo = np.clip(np.floor((lo - node_lo[:, None]) / step[:, None]), 0, 255)
-        q_hi = np.clip(np.ceil((hi - node_lo[:, None]) / step[:, None]), 0, 255)
-        # corner + count x step in float64 may round across the exact plane by an ulp: never inward
-        out[:, 2 * a, :] = np.where(valid, np.minimum(node_lo[:, None] + q_lo * step[:, None], lo), lo)
-        out[:, 2 * a + 1, :] = np.where(valid, np.maximum(node_lo[:, None] + q_hi * step[:, None], hi), hi)
+        if form == "half":
+            span = np.maximum(extent, 1e-30)[:, None]
+            q_lo = np.clip(_half_down((lo - node_lo[:, None]) / span), 0.0, 1.0)
+            q_hi = np.clip(-_half_down(-(hi - node_lo[:, None]) / span), 0.0, 1.0)
+            dec_lo, dec_hi = node_lo[:, None] + q_lo * span, node_lo[:, None] + q_hi * span
+        else:
+            # the smallest power of two with 255 steps covering the extent (a node of zero extent: any step)
+            step = np.exp2(np.ceil(np.log2(np.maximum(extent, 1e-30) / 255.0)))[:, None]
+            q_lo = np.clip(np.floor((lo - node_lo[:, None]) / step), 0, 255)
+            q_hi = np.clip(np.ceil((hi - node_lo[:, None]) / step), 0, 255)
+            dec_lo, dec_hi = node_lo[:, None] + q_lo * step, node_lo[:, None] + q_hi * step
+        # the decode in float64 may round across the exact plane by an ulp: never inward
+        out[:, 2 * a, :] = np.where(valid, np.minimum(dec_lo, lo), lo)
+        out[:, 2 * a + 1, :] = np.where(valid, np.maximum(dec_hi, hi), hi)
     return out
 
 
@@ -58,14 +71,17 @@ def main():
     ap.add_argument("--views", default="bunny/fill,dragon/fill,sponza/inside,kitchen/inside,conference/inside")
     ap.add_argument("--kinds", default="diffuse,primary")
     ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--form", choices=("8bit", "half"), default="8bit",
+                    help="8-bit step counts (64-byte nodes) or float16 fractions of the node's box (80-byte nodes)")
     args = ap.parse_args()
-    print("| view | rays | node visits a ray (float, 8-bit) | boxes tested | triangle tests | node bytes read a ray "
-          "(112 B, 64 B nodes) | same t on every ray |")
+    print(f"| view | rays | node visits a ray (float, {args.form}) | boxes tested | triangle tests | node bytes read a "
+          f"ray (112 B, {64 if args.form == '8bit' else 80} B nodes) | same t on every ray |")
     print("|---|---|---|---|---|---|---|")
     for view in args.views.split(","):
         scene = view_scene(view, args.size)
         b4, _ = load_or_build_bvh4(scene.vertices, scene.faces)
-        quant = quantised_planes(b4.planes())
+        quant = quantised_planes(b4.planes(), args.form)
+        node_bytes = 64 if args.form == "8bit" else 80
         o, d = camera_rays(scene.camera)
         for kind in args.kinds.split(","):
             ro, rd = o, d
@@ -79,8 +95,8 @@ def main():
             nv, qv = a[0].mean(), q[0].mean()
             print(f"| {view} | {kind} | {nv:.1f} → {qv:.1f} ({(qv / nv - 1) * 100:+.1f} %) | "
                   f"{a[1].mean():.1f} → {q[1].mean():.1f} | {a[2].mean():.2f} → {q[2].mean():.2f} "
-                  f"({(q[2].mean() / a[2].mean() - 1) * 100:+.1f} %) | {112 * nv:.0f} → {64 * qv:.0f} "
-                  f"({(64 * qv / (112 * nv) - 1) * 100:+.0f} %) | {'yes' if same_t else 'NO'}"
+                  f"({(q[2].mean() / a[2].mean() - 1) * 100:+.1f} %) | {112 * nv:.0f} → {node_bytes * qv:.0f} "
+                  f"({(node_bytes * qv / (112 * nv) - 1) * 100:+.0f} %) | {'yes' if same_t else 'NO'}"
                   f"{f' (another triangle at the same t on {ties} rays)' if ties else ''} |")
 
 

@@ -29,7 +29,7 @@ FEATURES = SceneFeatures(stack_size=48, smooth_normals=False, n_lights=1, n_mate
 
 # Opcodes that issue to the integer/compare pipe, 16 lanes a scheduler on sm_90 (the FMA pipe has 32)
 NARROW_PIPE = {"VIMNMX", "VIMNMX3", "LOP3", "SEL", "ISETP", "FSETP", "FSEL", "IADD3", "SHF", "FMNMX", "PLOP3", "P2R",
-               "R2P", "LEA"}
+               "R2P", "LEA", "PRMT"}
 
 
 def sass_functions(text: str) -> dict[str, list[tuple[int, str]]]:
