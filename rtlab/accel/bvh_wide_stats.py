@@ -115,8 +115,9 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
     """Per ray: (nodes visited, child boxes tested (non-empty slots), triangle tests, closest triangle
     or -1, its t), in rt_bvh4.h's order (nearest child first, the others pushed farthest first with
     their entry distances, popped ones beyond the closest hit dropped), exact boxes in float64,
-    Moller-Trumbore in float64."""
+    Moller-Trumbore in float64. The node width is planes.shape[2] (4 for rt_bvh4.h)."""
     n = origins.shape[0]
+    width = planes.shape[2]
     n_nodes = np.zeros(n, np.int64)
     n_boxes = np.zeros(n, np.int64)
     n_tris = np.zeros(n, np.int64)
@@ -129,19 +130,19 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
         inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, tmin)
         if not t0 <= t1:
             continue
-        stack_ref = np.empty(3 * depth + 4, np.int64)
-        stack_t = np.empty(3 * depth + 4)
+        stack_ref = np.empty((width - 1) * depth + width, np.int64)
+        stack_t = np.empty((width - 1) * depth + width)
         sp = 0
         ref = 0
         best_t, best = np.inf, -1
-        keys = np.empty(4)
-        kref = np.empty(4, np.int64)
+        keys = np.empty(width)
+        kref = np.empty(width, np.int64)
         while True:
             while ref >= 0:
                 node = ref // node_rows
                 n_nodes[i] += 1
                 k = 0
-                for s in range(4):
+                for s in range(width):
                     for a in range(3):
                         lo[a], hi[a] = planes[node, 2 * a, s], planes[node, 2 * a + 1, s]
                     if not lo[0] <= hi[0]:
