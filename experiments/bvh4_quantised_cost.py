@@ -22,9 +22,7 @@ import numpy as np
 
 from rtlab.accel.bvh4 import load_or_build_bvh4
 from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
-from rtlab.benches.rays import diffuse_rays, view_scene
-from rtlab.reference import reference_trace
-from rtlab.scene.model import camera_rays
+from rtlab.benches.rays import make_rays, view_scene
 
 
 def _half_down(x: np.ndarray) -> np.ndarray:
@@ -74,7 +72,8 @@ def main():
     ap.add_argument("--form", choices=("8bit", "half"), default="8bit",
                     help="8-bit step counts (64-byte nodes) or float16 fractions of the node's box (80-byte nodes)")
     args = ap.parse_args()
-    print(f"| view | rays | node visits a ray (float, {args.form}) | boxes tested | triangle tests | node bytes read a "
+    label = {"8bit": "8-bit", "half": "half"}[args.form]
+    print(f"| view | rays | node visits a ray (float, {label}) | boxes tested | triangle tests | node bytes read a "
           f"ray (112 B, {64 if args.form == '8bit' else 80} B nodes) | same t on every ray |")
     print("|---|---|---|---|---|---|---|")
     for view in args.views.split(","):
@@ -82,14 +81,10 @@ def main():
         b4, _ = load_or_build_bvh4(scene.vertices, scene.faces)
         quant = quantised_planes(b4.planes(), args.form)
         node_bytes = 64 if args.form == "8bit" else 80
-        o, d = camera_rays(scene.camera)
         for kind in args.kinds.split(","):
-            ro, rd = o, d
-            if kind == "diffuse":
-                first = reference_trace(scene.vertices, scene.faces, o, d)
-                ro, rd = diffuse_rays(scene, o, d, first.t, first.tri)
-            a = traversal_counts_bvh4(b4, scene.vertices, scene.faces, ro, rd)
-            q = traversal_counts_bvh4(b4, scene.vertices, scene.faces, ro, rd, planes=quant)
+            rays = make_rays(view, kind, args.size, check_rays=1, scene=scene)
+            a = traversal_counts_bvh4(b4, scene.vertices, scene.faces, rays.origins, rays.directions)
+            q = traversal_counts_bvh4(b4, scene.vertices, scene.faces, rays.origins, rays.directions, planes=quant)
             same_t = np.array_equal(a[4], q[4])
             ties = int(np.sum(a[3] != q[3]))     # the same t on another triangle: coplanar overlaps
             nv, qv = a[0].mean(), q[0].mean()

@@ -21,17 +21,15 @@ import numpy as np
 from rtlab.accel.bvh4 import LEAF_BITS, Bvh4BuildParams
 from rtlab.accel.bvh8 import TRI_ROWS
 from rtlab.accel.bvh_collapse import collapse_best
-from rtlab.accel.bvh_wide_stats import _count_bvh4
-from rtlab.benches.rays import diffuse_rays, view_scene
-from rtlab.reference import reference_trace
-from rtlab.scene.model import camera_rays
+from rtlab.accel.bvh_wide_stats import WideWalkArrays, traversal_counts_wide
+from rtlab.benches.rays import make_rays, view_scene
 
 NODE_BYTES = {4: 112, 8: 224}     # six float planes a child and an int ref a child
 
 
 def wide_walk_arrays(vertices, faces, width: int, params: Bvh4BuildParams = Bvh4BuildParams()):
-    """(planes (M, 6, width), refs (M, width), tri ids, tri_row0, depth, bounds, node_rows) of the scene's
-    binary tree collapsed to ``width`` float children a node, laid out as rt_bvh4.h lays its 4."""
+    """The scene's binary tree collapsed to ``width`` float children a node, laid out as rt_bvh4.h lays
+    its 4."""
     _, binary, wide, _ = collapse_best(vertices, faces, params.binary, width, params.leaf_max, params.cost_node,
                                        params.cost_prim)
     (_, _, kind, c_lo, c_hi, c_node, c_count, c_offset, _, tri_base, tris, depth) = wide
@@ -46,17 +44,7 @@ def wide_walk_arrays(vertices, faces, width: int, params: Bvh4BuildParams = Bvh4
     first = tri_row0 + TRI_ROWS * (tri_base[:, None] + c_offset)
     refs = np.where(kind == 1, node_rows * c_node, ~((first << LEAF_BITS) | c_count))
     refs = np.where(valid, refs, ~0).astype(np.int64)
-    return planes, refs, np.asarray(tris, np.int64), tri_row0, int(depth), binary.bounds, node_rows
-
-
-def counts(arrays, vertices, faces, o, d):
-    planes, refs, tris, tri_row0, depth, bounds, node_rows = arrays
-    b = np.asarray(bounds, np.float64)                 # grown as rtlab.device.device_scene.padded_bounds does
-    pad = np.abs(b).max() * 2.0 ** -20 + (b[1] - b[0]).max() * 1e-6 + 1e-30
-    return _count_bvh4(planes, refs, tris, tri_row0, np.asarray(vertices, np.float32).astype(np.float64),
-                       np.asarray(faces, np.int64), b[0] - pad, b[1] + pad, depth,
-                       np.asarray(o, np.float32).astype(np.float64), np.asarray(d, np.float32).astype(np.float64),
-                       0.0, node_rows, TRI_ROWS, LEAF_BITS)
+    return WideWalkArrays(planes, refs, np.asarray(tris, np.int64), tri_row0, int(depth), binary.bounds, node_rows)
 
 
 def main():
@@ -71,13 +59,10 @@ def main():
     for view in args.views.split(","):
         scene = view_scene(view, args.size)
         arrays = {w: wide_walk_arrays(scene.vertices, scene.faces, w) for w in (4, 8)}
-        o, d = camera_rays(scene.camera)
         for kind in args.kinds.split(","):
-            ro, rd = o, d
-            if kind == "diffuse":
-                first = reference_trace(scene.vertices, scene.faces, o, d)
-                ro, rd = diffuse_rays(scene, o, d, first.t, first.tri)
-            c4, c8 = (counts(arrays[w], scene.vertices, scene.faces, ro, rd) for w in (4, 8))
+            rays = make_rays(view, kind, args.size, check_rays=1, scene=scene)
+            c4, c8 = (traversal_counts_wide(arrays[w], scene.vertices, scene.faces, rays.origins, rays.directions)
+                      for w in (4, 8))
             v4, v8 = c4[0].mean(), c8[0].mean()
             bytes4, bytes8 = NODE_BYTES[4] * v4, NODE_BYTES[8] * v8
             print(f"| {view} | {kind} | {v4:.1f} → {v8:.1f} ({(v8 / v4 - 1) * 100:+.0f} %) | "

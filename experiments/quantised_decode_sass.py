@@ -10,7 +10,6 @@ conversion unit (16 lanes a clock an SM: an instruction a warp holds it for 8 of
 """
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
 import sys
@@ -69,10 +68,8 @@ def main():
             conv = sum(n for op, n in decode.items() if op in CONVERSION_UNIT) / planes
             listing = ", ".join(f"{op} {n}" for op, n in sorted(decode.items(), key=lambda kv: -kv[1]))
             print(f"| {name} | {total:.2f} | {narrow:.2f} | {conv:.2f} | {listing} (for {planes} planes) |")
-    print(re.sub(r"\s+", " ", """
-The exponent trick's FADD is exact (the byte in 2^23's mantissa); the fma that follows it is the float
-node's. A fold of the 2^23 into the fma's addend would round it by up to half a quantisation step.
-""").strip())
+    print("The exponent trick's FADD is exact (the byte in 2^23's mantissa); folding the 2^23 into the fma's "
+          "addend would round it by up to half a quantisation step.")
 
 
 if __name__ == "__main__":

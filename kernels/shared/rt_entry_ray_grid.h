@@ -45,8 +45,8 @@ RT_KERNEL void trace_ray_grid(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(floa
  * its own: the host orders the tiles costliest first (rtlab.device.tile_orders), so a launch does not
  * end behind costly tiles started last. b counts blocks row by row of the launch's grid, whose width
  * in blocks, ceil(width / block width), is read from the launch (a division there would be ~30
- * instructions a thread ahead of the tile's first load). Only the library's program declares it: the labs' grid stays the
- * paper's. */
+ * instructions a thread ahead of the tile's first load). Only the library's program declares it: the
+ * labs' grid stays the paper's. */
 RT_KERNEL void trace_ray_grid_ordered(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions,
                                       RT_OUT(float4) hits, int width, int height, RT_IN(int2) tiles RT_WITH_FRAME)
 {

@@ -9,6 +9,8 @@ nopython mode), so a step's inputs are its parameters.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..jit import njit
@@ -182,14 +184,35 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
     return n_nodes, n_boxes, n_tris, hit_tri, hit_t
 
 
-def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0, planes=None):
-    """_count_bvh4 of ``b`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray.
-    ``planes``: other child boxes for the same tree, laid out as Bvh4.planes() (default: b's own)."""
-    bounds = np.asarray(b.bounds, np.float64)          # grown as rtlab.device.device_scene.padded_bounds does
+class WideWalkArrays(NamedTuple):
+    """A wide tree of any width laid out as rt_bvh4.h lays its 4: planes (M, 6, width), refs (M, width)
+    (inner refs node_rows x node, leaf refs of triangle rows from tri_row0), the leaf-ordered triangle
+    ids, the tree's depth and root box."""
+    planes: np.ndarray
+    refs: np.ndarray
+    tri_ids: np.ndarray
+    tri_row0: int
+    depth: int
+    bounds: np.ndarray
+    node_rows: int
+
+
+def traversal_counts_wide(tree: WideWalkArrays, vertices, faces, origins, directions, tmin: float = 0.0):
+    """_count_bvh4 of ``tree`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
+    bounds = np.asarray(tree.bounds, np.float64)       # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
-    planes = b.planes() if planes is None else planes
-    return _count_bvh4(np.asarray(planes, np.float64), b.refs().astype(np.int64), np.asarray(b.tri_ids, np.int64),
-                       b.tri_row0, np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
-                       bounds[0] - pad, bounds[1] + pad, int(b.depth), np.asarray(origins, np.float32).astype(np.float64),
-                       np.asarray(directions, np.float32).astype(np.float64), float(tmin), BVH4_NODE_ROWS, TRI_ROWS,
-                       BVH4_LEAF_BITS)
+    o = np.asarray(origins, np.float32).astype(np.float64)
+    d = np.asarray(directions, np.float32).astype(np.float64)
+    return _count_bvh4(np.asarray(tree.planes, np.float64), np.asarray(tree.refs, np.int64),
+                       np.asarray(tree.tri_ids, np.int64), int(tree.tri_row0),
+                       np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
+                       bounds[0] - pad, bounds[1] + pad, int(tree.depth), o, d, float(tmin), int(tree.node_rows),
+                       TRI_ROWS, BVH4_LEAF_BITS)
+
+
+def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0, planes=None):
+    """traversal_counts_wide of ``b``: (nodes, boxes, tris, tri ids, t) per ray. ``planes``: other child
+    boxes for the same tree, laid out as Bvh4.planes() (default: b's own)."""
+    tree = WideWalkArrays(b.planes() if planes is None else planes, b.refs(), b.tri_ids, b.tri_row0, b.depth,
+                          b.bounds, BVH4_NODE_ROWS)
+    return traversal_counts_wide(tree, vertices, faces, origins, directions, tmin)
