@@ -10,6 +10,12 @@
 #              leaf (2); diffuse rays at 1024², CUDA and NVIDIA OpenCL
 #   tailorder  diffuse rays with the costliest warps first, ranked by the host mirror (sortwheavyP: the
 #              bound) or by the grid estimate (sortwproxyP), the permutation not timed; CUDA
+#   wide8      the same walk on 8 float children a node ("bvh8f") against 4 ("bvh4"): diffuse rays at
+#              1024² (the ray fetch), CUDA and NVIDIA OpenCL; "bvh8f" is a traversal only with
+#              experiments/prototypes/bvh8f_traversal.patch applied (`git apply` it before the run)
+#   threshold  the ray fetch's refill threshold (RT_FETCH_THRESHOLD: the lanes still tracing stop after a
+#              leaf when fewer are left) swept on the 4-wide walk: diffuse rays at 1024², CUDA (five
+#              views) and NVIDIA OpenCL (DRAGON and CONFERENCE)
 set -u
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -39,6 +45,17 @@ for part in "$@"; do
     tailorder)
       timeout 300 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 \
         --configs "bvh4;bvh4,sortwheavy10;bvh4,sortwheavy30;bvh4,sortwproxy10;bvh4,sortwproxy30" ;;
+    threshold)
+      T="bvh4;bvh4,RT_FETCH_THRESHOLD=12;bvh4,RT_FETCH_THRESHOLD=16;bvh4,RT_FETCH_THRESHOLD=24;bvh4,RT_FETCH_THRESHOLD=28"
+      timeout 260 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$T"
+      timeout 150 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
+        --views dragon/fill,conference/inside --configs "$T" ;;
+    wide8)
+      python -c "from rtlab.device.variants import TRAVERSALS; assert 'bvh8f' in TRAVERSALS" 2>/dev/null \
+        || { echo "no bvh8f traversal: git apply experiments/prototypes/bvh8f_traversal.patch first"; continue; }
+      for be in "--backend cuda" "--backend opencl --device NVIDIA"; do
+        timeout 200 python ab_trace_configs.py $be $R --kinds diffuse --size 1024 --views $V5 --configs "bvh4;bvh8f"
+      done ;;
   esac > "$OUT/ab_$part.txt" 2>&1
   echo "== $part (exit $?)"; grep "^|\|^device\|does not\|^no " "$OUT/ab_$part.txt"
 done
