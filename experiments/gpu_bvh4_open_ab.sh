@@ -10,6 +10,9 @@
 #              leaf (2); diffuse rays at 1024², CUDA and NVIDIA OpenCL
 #   tailorder  diffuse rays with the costliest warps first, ranked by the host mirror (sortwheavyP: the
 #              bound) or by the grid estimate (sortwproxyP), the permutation not timed; CUDA
+#   visitexit  the ray fetch's visit loop left once fewer than K lanes are still in it (RT_FETCH_VISIT_EXIT=K;
+#              1: at its last lane, as before), diffuse rays at 1024², CUDA (five views) and NVIDIA OpenCL
+#              (DRAGON and CONFERENCE)
 #   wide8      the same walk on 8 float children a node ("bvh8f") against 4 ("bvh4"): diffuse rays at
 #              1024² (the ray fetch), CUDA and NVIDIA OpenCL; "bvh8f" is a traversal only with
 #              experiments/prototypes/bvh8f_traversal.patch applied (`git apply` it before the run)
@@ -50,6 +53,11 @@ for part in "$@"; do
       timeout 260 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$T"
       timeout 150 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
         --views dragon/fill,conference/inside --configs "$T" ;;
+    visitexit)
+      E="bvh4,RT_FETCH_VISIT_EXIT=1;bvh4,RT_FETCH_VISIT_EXIT=4;bvh4,RT_FETCH_VISIT_EXIT=6;bvh4,RT_FETCH_VISIT_EXIT=8;bvh4,RT_FETCH_VISIT_EXIT=12"
+      timeout 260 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$E"
+      timeout 150 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
+        --views dragon/fill,conference/inside --configs "$E" ;;
     wide8)
       python -c "from rtlab.device.variants import TRAVERSALS; assert 'bvh8f' in TRAVERSALS" 2>/dev/null \
         || { echo "no bvh8f traversal: git apply experiments/prototypes/bvh8f_traversal.patch first"; continue; }

@@ -261,13 +261,16 @@ def test_camera_rays_go_in_tiles_without_being_asked(backend, small_scene, monke
     assert type(o + d) is np.ndarray and getattr(o[::2], "image_width", None) is None
 
 
-@pytest.mark.parametrize("traversal,isect", [("bvh", "watertight"), ("bvh", "moller"), ("bvh4", "watertight"),
-                                             ("bvh4", "moller")])
-def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, isect, monkeypatch):
+@pytest.mark.parametrize("traversal,isect,defines", [("bvh", "watertight", None), ("bvh", "moller", None),
+                                                     ("bvh4", "watertight", None), ("bvh4", "moller", None),
+                                                     ("bvh4", "watertight", {"RT_FETCH_VISIT_EXIT_EACH": 1})])
+def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, isect, defines, monkeypatch):
     """trace_rays_fetch (a lane takes the next ray when its own is done; the walk resumes after each
     refill) returns trace_rays' hits bit for bit, on incoherent rays of a real scene, rays that miss
     the scene box and an empty tail of threads. Forced on every backend: on PoCL (no warps) each lane
-    stops after every leaf and resumes, which exercises the saved walk hardest."""
+    stops after every leaf and resumes, which exercises the saved walk hardest; with
+    RT_FETCH_VISIT_EXIT_EACH the 4-wide walk also leaves its visit loop after every node, as a lane
+    does whose warp leaves it early (rt_bvh4.h, RT_FETCH_VISIT_EXIT), and resumes between nodes."""
     from rtlab.device import tracing
     scene = rtlab.load_scene("default", size=24)
     o, d = camera_rays(scene.camera)
@@ -284,7 +287,7 @@ def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, 
     monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: False)
     plain = trace(scene, bo, bd, backend, variant)
     monkeypatch.setattr(type(backend), "has_warp_votes", lambda self: True)
-    fetched = trace(scene, bo, bd, backend, variant, repeats=3)
+    fetched = trace(scene, bo, bd, backend, variant, repeats=3, defines=defines)
     assert launched == [1]
     assert np.array_equal(plain.tri, fetched.tri) and np.array_equal(plain.t, fetched.t, equal_nan=True)
     assert np.array_equal(plain.u, fetched.u) and np.array_equal(plain.v, fetched.v)

@@ -215,6 +215,27 @@ def test_host_mirrors_find_the_reference_hits(name):
         assert c.n_mismatch == 0, c.summary()
 
 
+def test_bvh4_mirror_rounds_add_up_to_its_counts():
+    """The rounds the 4-wide mirror records (experiments/fetch_lane_model.py's input: each round the inner
+    nodes visited, the leaf's triangles, the entries popped) add up to its own visit and test counts
+    and end where the walk does (-1 after); rays that miss the scene box have none."""
+    v, f = _meshes()["default"]
+    rng = np.random.default_rng(9)
+    lo, hi = v.min(0).astype(np.float64), v.max(0).astype(np.float64)
+    o = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), (800, 3)).astype(np.float32)
+    d = (v[f[rng.integers(0, len(f), 800)]].mean(axis=1) - o).astype(np.float32)
+    d[:50] = -d[:50]                                             # some point away and miss
+    b = build_bvh4(v, f)
+    rounds = np.zeros((len(o), 64, 3), np.int64)
+    nodes, _, tris, _, _ = traversal_counts_bvh4(b, v, f, o, d, rounds=rounds)
+    used = rounds[:, :, 0] >= 0
+    assert np.array_equal(np.where(used, rounds[:, :, 0], 0).sum(1), nodes)
+    assert np.array_equal(np.where(used, rounds[:, :, 1], 0).sum(1), tris)
+    assert np.all(np.diff(used.astype(int), axis=1) <= 0), "a round after the walk's end"
+    assert np.all(rounds[~used] == -1) and used[:, 0].sum() < len(o) and used[:, 0].sum() > len(o) // 2
+    assert np.all(rounds[used][:, 2] >= 0)
+
+
 # ---- the traversal on the backends -------------------------------------------------------------------
 _cases: dict = {}
 

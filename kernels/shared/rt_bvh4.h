@@ -270,20 +270,47 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
         s->fused = bvh4_ray(&s->ray, t_exit);
 }
 
+/* The ray fetch's visit loop is left once fewer than RT_FETCH_VISIT_EXIT lanes are still in it and
+ * another lane of the warp is at its leaf: the lanes at leaves test them and pop, the few still between
+ * nodes go on in the next round, and each warp instruction has more lanes busy (a third of the warp
+ * before). A lane's walk is the same; only the warp's schedule changes. 1 leaves it at its last lane
+ * (Aila & Laine's while-while). Chosen on the H100 (docs/results.md, "The ray fetch's visit loop
+ * left early"); experiments/fetch_lane_model.py models the lanes busy. */
+#ifndef RT_FETCH_VISIT_EXIT
+#define RT_FETCH_VISIT_EXIT 6
+#endif
+#ifndef RT_FETCH_VISIT_EXIT_EACH
+#define RT_FETCH_VISIT_EXIT_EACH 0   /* tests: leave it after every visit (PoCL has no warp to count) */
+#endif
+
 RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
 {
     Bvh4Entry unused_top;              /* this walk pops from memory (bvh4_pop_top says why) */
     unsigned int cut = bvh4_cut(&s->fused, s->hit.t);
     for (;;) {
+#if RT_FETCH_VISIT_EXIT > 1
+        int walking = rt_warp_active(), visited = 0;
+        while ((unsigned int)s->ref < (unsigned int)BVH_DONE) {
+            int in_loop = rt_warp_active();
+            if ((in_loop < RT_FETCH_VISIT_EXIT && in_loop < walking) || (RT_FETCH_VISIT_EXIT_EACH && visited))
+                break;
+            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
+            visited = 1;
+        }
+        if (s->ref < 0) {
+#else
         while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
             s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
-        if (s->ref != BVH4_NONE) {
-            bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
-            cut = bvh4_cut(&s->fused, s->hit.t);
+        {
+#endif
+            if (s->ref != BVH4_NONE) {
+                bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
+                cut = bvh4_cut(&s->fused, s->hit.t);
+            }
+            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
+            if (s->ref == BVH4_NONE)
+                s->ref = BVH_DONE;
         }
-        s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
-        if (s->ref == BVH4_NONE)
-            s->ref = BVH_DONE;
         if (s->ref == BVH_DONE || rt_warp_active() < RT_FETCH_THRESHOLD)
             return;
     }

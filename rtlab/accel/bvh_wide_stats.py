@@ -113,11 +113,13 @@ def traversal_counts_bvh8(b: Bvh8, vertices, faces, origins, directions, tmin: f
 # side.
 @njit(cache=True)
 def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo, scene_hi, depth, origins,
-                directions, tmin, node_rows, tri_rows, leaf_bits):
+                directions, tmin, node_rows, tri_rows, leaf_bits, rounds):
     """Per ray: (nodes visited, child boxes tested (non-empty slots), triangle tests, closest triangle
     or -1, its t), in rt_bvh4.h's order (nearest child first, the others pushed farthest first with
     their entry distances, popped ones beyond the closest hit dropped), exact boxes in float64,
-    Moller-Trumbore in float64. The node width is planes.shape[2] (4 for rt_bvh4.h)."""
+    Moller-Trumbore in float64. The node width is planes.shape[2] (4 for rt_bvh4.h). ``rounds`` (n, R,
+    3), where R > 0: each ray's first R rounds of the walk's outer loop (inner nodes visited, triangles
+    of the leaf reached or 0, stack entries popped), -1 past its last."""
     n = origins.shape[0]
     width = planes.shape[2]
     n_nodes = np.zeros(n, np.int64)
@@ -130,6 +132,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
     for i in range(n):
         o, d = origins[i], directions[i]
         inv, t0, t1 = ray_scene_interval(o, d, scene_lo, scene_hi, tmin)
+        rounds[i, :, :] = -1
         if not t0 <= t1:
             continue
         stack_ref = np.empty((width - 1) * depth + width, np.int64)
@@ -139,10 +142,13 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
         best_t, best = np.inf, -1
         keys = np.empty(width)
         kref = np.empty(width, np.int64)
+        r = 0
         while True:
+            v, c, p = 0, 0, 0
             while ref >= 0:
                 node = ref // node_rows
                 n_nodes[i] += 1
+                v += 1
                 k = 0
                 for s in range(width):
                     for a in range(3):
@@ -165,6 +171,7 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
             if ref != -(1 << 31):
                 bits = ~ref
                 first, count = bits >> leaf_bits, bits & ((1 << leaf_bits) - 1)
+                c = count
                 for j in range(count):
                     tri = tri_rows_ids[(first - tri_row0) // tri_rows + j]
                     n_tris[i] += 1
@@ -175,9 +182,13 @@ def _count_bvh4(planes, refs, tri_rows_ids, tri_row0, vertices, faces, scene_lo,
             ref = -(1 << 31)
             while sp > 0:
                 sp -= 1
+                p += 1
                 if stack_t[sp] <= best_t:
                     ref = stack_ref[sp]
                     break
+            if r < rounds.shape[1]:
+                rounds[i, r, 0], rounds[i, r, 1], rounds[i, r, 2] = v, c, p
+            r += 1
             if ref == -(1 << 31):
                 break
         hit_tri[i], hit_t[i] = best, best_t
@@ -197,8 +208,10 @@ class WideWalkArrays(NamedTuple):
     node_rows: int
 
 
-def traversal_counts_wide(tree: WideWalkArrays, vertices, faces, origins, directions, tmin: float = 0.0):
-    """_count_bvh4 of ``tree`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray."""
+def traversal_counts_wide(tree: WideWalkArrays, vertices, faces, origins, directions, tmin: float = 0.0,
+                          rounds: np.ndarray | None = None):
+    """_count_bvh4 of ``tree`` for rays (origins, directions): (nodes, boxes, tris, tri ids, t) per ray.
+    ``rounds``: an (n, R, 3) int64 array to fill with each ray's rounds (_count_bvh4)."""
     bounds = np.asarray(tree.bounds, np.float64)       # grown as rtlab.device.device_scene.padded_bounds does
     pad = np.abs(bounds).max() * 2.0 ** -20 + (bounds[1] - bounds[0]).max() * 1e-6 + 1e-30
     o = np.asarray(origins, np.float32).astype(np.float64)
@@ -207,12 +220,13 @@ def traversal_counts_wide(tree: WideWalkArrays, vertices, faces, origins, direct
                        np.asarray(tree.tri_ids, np.int64), int(tree.tri_row0),
                        np.asarray(vertices, np.float32).astype(np.float64), np.asarray(faces, np.int64),
                        bounds[0] - pad, bounds[1] + pad, int(tree.depth), o, d, float(tmin), int(tree.node_rows),
-                       TRI_ROWS, BVH4_LEAF_BITS)
+                       TRI_ROWS, BVH4_LEAF_BITS, np.zeros((len(o), 0, 3), np.int64) if rounds is None else rounds)
 
 
-def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0, planes=None):
+def traversal_counts_bvh4(b: Bvh4, vertices, faces, origins, directions, tmin: float = 0.0, planes=None,
+                          rounds: np.ndarray | None = None):
     """traversal_counts_wide of ``b``: (nodes, boxes, tris, tri ids, t) per ray. ``planes``: other child
-    boxes for the same tree, laid out as Bvh4.planes() (default: b's own)."""
+    boxes for the same tree, laid out as Bvh4.planes() (default: b's own); ``rounds``: as there."""
     tree = WideWalkArrays(b.planes() if planes is None else planes, b.refs(), b.tri_ids, b.tri_row0, b.depth,
                           b.bounds, BVH4_NODE_ROWS)
-    return traversal_counts_wide(tree, vertices, faces, origins, directions, tmin)
+    return traversal_counts_wide(tree, vertices, faces, origins, directions, tmin, rounds)

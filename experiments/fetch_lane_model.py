@@ -1,0 +1,168 @@
+"""Where a warp's lanes idle in the ray fetch's walk (trace_rays_fetch on the 4-wide tree), modelled on the
+host: each diffuse ray's walk as rt_bvh4.h takes it, round by round (the float64 mirror,
+rtlab.accel.bvh_wide_stats: a round is the inner nodes visited down to a leaf, that leaf's triangles, the
+stack entries popped), and a warp of 32 lanes that runs them as bvh4_trace_steps does: the visit loop
+until its last lane leaves it, the leaf's triangles until the largest leaf is done, the pops, then
+lanes whose ray is done wait until fewer than THRESHOLD lanes still walk, when the idle ones take the
+next rays together.
+
+    python experiments/fetch_lane_model.py --views dragon/fill,conference/inside --size 256
+
+Counts warp instructions (a step that any lane takes costs its SASS instructions once) and lane
+instructions (once a lane that takes it), from the costs of the fetch kernel's SASS below. The
+measured side (Nsight Compute, H100, 1024², docs/results/wide-bvh.md): threads a warp instruction 9.65
+on DRAGON, 9.35 on CONFERENCE. "if-if" is the other loop shape of Aila & Laine (2009): each iteration a
+lane either visits one node or, at a leaf, tests its triangles and pops, so lanes between nodes do not
+wait for the others' leaves, nor lanes at leaves for the others' visits.
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from numba import njit
+
+from rtlab.accel.bvh4 import load_or_build_bvh4
+from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
+from rtlab.benches.rays import make_rays, view_scene
+
+WARP = 32
+MAX_ROUNDS = 256
+# SASS instructions (trace_rays_fetch, bvh4/watertight, sm_90; nvcc_kernel_report.py --node-loop 7): a node
+# visit (its loop) and a triangle test (the leaf's loop) as counted there; an entry popped, a round's own
+# (the leaf's ref decoded, the cut, the warp vote) and a ray started (hit refined and stored, the
+# counter, the ray loaded, the walk's constants) estimated from the listing.
+COSTS = {"visit": 106, "tri": 143, "pop": 12, "round": 20, "ray": 250}
+VOTE = 9                                   # the visit loop's warp vote, compares and branch (SASS: 106 -> 115)
+
+
+@njit(cache=True)
+def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c_round, c_ray):
+    """(warp instructions, lane instructions) by phase: visit, leaf, pop, round, ray start. visit_exit K
+    (while-while): the visit loop stops once fewer than K lanes are still in it and another lane is at
+    its leaf (1: at its last lane); the lanes still between nodes then go on in the next round, the
+    others test their leaf and pop."""
+    n, r_max = rounds.shape[0], rounds.shape[1]
+    warp = np.zeros(5)
+    lane = np.zeros(5)
+    ray = np.full(WARP, -1, np.int64)
+    r = np.zeros(WARP, np.int64)
+    left_v = np.zeros(WARP, np.int64)          # if-if: visits left in the lane's round
+    nxt = 0
+    while True:
+        # lanes without a ray take the next ones (a ray outside the scene box is done at once)
+        taken = 0
+        for k in range(WARP):
+            while ray[k] < 0 and nxt < n:
+                ray[k], r[k] = nxt, 0
+                nxt += 1
+                taken += 1
+                if rounds[ray[k], 0, 0] < 0:
+                    ray[k] = -1
+                else:
+                    left_v[k] = rounds[ray[k], 0, 0]
+        if taken:
+            warp[4] += c_ray
+            lane[4] += c_ray * taken
+        walking = 0
+        for k in range(WARP):
+            walking += ray[k] >= 0
+        if walking == 0:
+            break
+        while True:
+            if not shape_if:
+                # the visit loop, until fewer than visit_exit lanes are still in it
+                while True:
+                    act, walk = 0, 0
+                    for k in range(WARP):
+                        act += ray[k] >= 0 and left_v[k] > 0
+                        walk += ray[k] >= 0
+                    if act == 0 or (act < visit_exit and act < walk):   # some lane at its leaf
+                        break
+                    warp[0] += c_visit
+                    lane[0] += c_visit * act
+                    for k in range(WARP):
+                        if ray[k] >= 0 and left_v[k] > 0:
+                            left_v[k] -= 1
+            else:
+                # one step a lane: a visit, or (visits done) its leaf and pops
+                act = 0
+                for k in range(WARP):
+                    act += ray[k] >= 0 and left_v[k] > 0
+                if act:
+                    warp[0] += c_visit
+                    lane[0] += c_visit * act
+            leafing = np.zeros(WARP, np.bool_)
+            for k in range(WARP):
+                leafing[k] = ray[k] >= 0 and left_v[k] == 0
+            for col, cost, slot in ((1, c_tri, 1), (2, c_pop, 2)):
+                it = 0
+                while True:
+                    act = 0
+                    for k in range(WARP):
+                        act += leafing[k] and rounds[ray[k], r[k], col] > it
+                    if act == 0:
+                        break
+                    warp[slot] += cost
+                    lane[slot] += cost * act
+                    it += 1
+            act = 0
+            for k in range(WARP):
+                act += leafing[k]
+            if act:
+                warp[3] += c_round
+                lane[3] += c_round * act
+            walking = 0
+            for k in range(WARP):
+                if ray[k] < 0:
+                    continue
+                if left_v[k] > 0:
+                    left_v[k] -= shape_if     # if-if: this iteration's visit (while-while: visits left)
+                    walking += 1
+                    continue
+                r[k] += 1
+                if r[k] >= r_max or rounds[ray[k], r[k], 0] < 0:
+                    ray[k] = -1
+                else:
+                    left_v[k] = rounds[ray[k], r[k], 0]
+                    walking += 1
+            if walking == 0 or walking < threshold:
+                break
+    return warp, lane
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--views", default="dragon/fill,conference/inside")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--thresholds", default="20")
+    ap.add_argument("--visit-exits", default="1,4,8,12", help="while-while: stop the visit loop below K lanes")
+    args = ap.parse_args()
+    c = COSTS
+    print("| view | loop | threshold | lanes a warp instruction (of 32) | warp instructions a ray | lane instructions a ray "
+          "| lanes busy: visits / triangles / pops / ray starts |")
+    print("|---|---|---:|---:|---:|---:|---|")
+    for view in args.views.split(","):
+        scene = view_scene(view, args.size)
+        rays = make_rays(view, "diffuse", args.size, check_rays=1, scene=scene)
+        b4, _ = load_or_build_bvh4(scene.vertices, scene.faces)
+        rounds = np.zeros((len(rays.origins), MAX_ROUNDS, 3), np.int64)
+        traversal_counts_bvh4(b4, scene.vertices, scene.faces, rays.origins, rays.directions, rounds=rounds)
+        cut = int(np.sum(rounds[:, -1, 0] >= 0))
+        if cut:
+            print(f"({view}: {cut} rays walk more than {MAX_ROUNDS} rounds; their rest is not counted)")
+        n = len(rays.origins)
+        shapes = [("while-while", int(k)) for k in args.visit_exits.split(",")] + [("if-if", 1)]
+        for shape, exit_k in shapes:
+            for thr in (int(t) for t in args.thresholds.split(",")):
+                vote = VOTE if exit_k > 1 else 0       # a warp vote a visit to know how many lanes are left
+                warp, lane = _run_warps(rounds, shape == "if-if", thr, exit_k, c["visit"] + vote, c["tri"], c["pop"],
+                                        c["round"], c["ray"])
+                busy = " / ".join(f"{lane[i] / warp[i]:.1f}" if warp[i] else "-" for i in (0, 1, 2, 4))
+                name = shape if exit_k == 1 else f"{shape}, visits stop below {exit_k} lanes"
+                print(f"| {view} | {name} | {thr} | {lane.sum() / warp.sum():.2f} | {warp.sum() / n:.0f} | "
+                      f"{lane.sum() / n:.0f} | {busy} |")
+
+
+if __name__ == "__main__":
+    main()
