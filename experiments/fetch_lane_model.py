@@ -13,7 +13,9 @@ instructions (once a lane that takes it), from the costs of the fetch kernel's S
 measured side (Nsight Compute, H100, 1024², docs/results/wide-bvh.md): threads a warp instruction 9.65
 on DRAGON, 9.35 on CONFERENCE. "if-if" is the other loop shape of Aila & Laine (2009): each iteration a
 lane either visits one node or, at a leaf, tests its triangles and pops, so lanes between nodes do not
-wait for the others' leaves, nor lanes at leaves for the others' visits.
+wait for the others' leaves, nor lanes at leaves for the others' visits. "pop in loop" (rt_bvh4.h's
+RT_FETCH_POP_IN_LOOP): a visit that enters no child pops the next pending one inside the visit loop, so
+a round without a leaf joins the next one (its pops counted as POP_IN_LOOP instructions a visit).
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ MAX_ROUNDS = 256
 # (the leaf's ref decoded, the cut, the warp vote) and a ray started (hit refined and stored, the
 # counter, the ray loaded, the walk's constants) estimated from the listing.
 COSTS = {"visit": 106, "tri": 143, "pop": 12, "round": 20, "ray": 250}
+POP_IN_LOOP = 8                            # the visit loop's test for "no child entered", its branch
 VOTE = 9                                   # the visit loop's warp vote, compares and branch (SASS: 106 -> 115)
 
 
@@ -131,6 +134,24 @@ def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c
     return warp, lane
 
 
+@njit(cache=True)
+def rounds_with_pops_in_loop(rounds):
+    """The rounds as the walk takes them when a visit that enters no child pops in the visit loop: a
+    round without a leaf (0 triangles) joins the next one, its visits added to it."""
+    out = np.full_like(rounds, -1)
+    for i in range(rounds.shape[0]):
+        j, v = 0, 0
+        for r in range(rounds.shape[1]):
+            if rounds[i, r, 0] < 0:
+                break
+            v += rounds[i, r, 0]
+            if rounds[i, r, 1] == 0 and r + 1 < rounds.shape[1] and rounds[i, r + 1, 0] >= 0:
+                continue
+            out[i, j, 0], out[i, j, 1], out[i, j, 2] = v, rounds[i, r, 1], rounds[i, r, 2]
+            j, v = j + 1, 0
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--views", default="dragon/fill,conference/inside")
@@ -152,12 +173,15 @@ def main():
         if cut:
             print(f"({view}: {cut} rays walk more than {MAX_ROUNDS} rounds; their rest is not counted)")
         n = len(rays.origins)
-        shapes = [("while-while", int(k)) for k in args.visit_exits.split(",")] + [("if-if", 1)]
-        for shape, exit_k in shapes:
+        merged = rounds_with_pops_in_loop(rounds)
+        exits = [int(k) for k in args.visit_exits.split(",")]
+        shapes = ([("while-while", k, False) for k in exits] + [("while-while, pop in loop", k, True) for k in exits]
+                  + [("if-if", 1, False)])
+        for shape, exit_k, pops_in_loop in shapes:
             for thr in (int(t) for t in args.thresholds.split(",")):
-                vote = VOTE if exit_k > 1 else 0       # a warp vote a visit to know how many lanes are left
-                warp, lane = _run_warps(rounds, shape == "if-if", thr, exit_k, c["visit"] + vote, c["tri"], c["pop"],
-                                        c["round"], c["ray"])
+                extra = (VOTE if exit_k > 1 else 0) + (POP_IN_LOOP if pops_in_loop else 0)
+                warp, lane = _run_warps(merged if pops_in_loop else rounds, shape == "if-if", thr, exit_k,
+                                        c["visit"] + extra, c["tri"], c["pop"], c["round"], c["ray"])
                 busy = " / ".join(f"{lane[i] / warp[i]:.1f}" if warp[i] else "-" for i in (0, 1, 2, 4))
                 name = shape if exit_k == 1 else f"{shape}, visits stop below {exit_k} lanes"
                 print(f"| {view} | {name} | {thr} | {lane.sum() / warp.sum():.2f} | {warp.sum() / n:.0f} | "
