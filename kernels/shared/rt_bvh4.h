@@ -291,33 +291,39 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
 #define RT_FETCH_VISIT_EXIT_EACH 0   /* tests: leave it after every visit (PoCL has no warp to count) */
 #endif
 
-RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
+/* The visit loop of bvh4_trace_steps, as scheduled above: leaves s->ref at a leaf, at BVH4_NONE (no child
+ * entered), at BVH_DONE (popped in the loop, none left) or, left early, at an inner node */
+RT_FN void bvh4_fetch_visits(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack, unsigned int cut)
 {
     Bvh4Entry unused_top;              /* this walk pops from memory (bvh4_pop_top says why) */
+#if RT_FETCH_VISIT_EXIT > 1
+    int walking = rt_warp_active(), visited = 0;
+    while ((unsigned int)s->ref < (unsigned int)BVH_DONE) {
+        int in_loop = rt_warp_active();
+        if ((in_loop < RT_FETCH_VISIT_EXIT && in_loop < walking) || (RT_FETCH_VISIT_EXIT_EACH && visited))
+            break;
+        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
+#if RT_FETCH_POP_IN_LOOP
+        if (s->ref == BVH4_NONE) {            /* no child entered: the next pending one */
+            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
+            if (s->ref == BVH4_NONE)
+                s->ref = BVH_DONE;
+        }
+#endif
+        visited = 1;
+    }
+#else
+    while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
+        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
+#endif
+}
+
+RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
+{
     unsigned int cut = bvh4_cut(&s->fused, s->hit.t);
     for (;;) {
-#if RT_FETCH_VISIT_EXIT > 1
-        int walking = rt_warp_active(), visited = 0;
-        while ((unsigned int)s->ref < (unsigned int)BVH_DONE) {
-            int in_loop = rt_warp_active();
-            if ((in_loop < RT_FETCH_VISIT_EXIT && in_loop < walking) || (RT_FETCH_VISIT_EXIT_EACH && visited))
-                break;
-            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
-#if RT_FETCH_POP_IN_LOOP
-            if (s->ref == BVH4_NONE) {        /* no child entered: the next pending one */
-                s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
-                if (s->ref == BVH4_NONE)
-                    s->ref = BVH_DONE;
-            }
-#endif
-            visited = 1;
-        }
-        if (s->ref < 0) {
-#else
-        while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
-            s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
-        {
-#endif
+        bvh4_fetch_visits(RT_SCENE_ARGS, s, stack, cut);
+        if (s->ref < 0) {                     /* at a leaf, or no child entered */
             if (s->ref != BVH4_NONE) {
                 bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
                 cut = bvh4_cut(&s->fused, s->hit.t);
