@@ -40,24 +40,26 @@ VOTE = 9                                   # the visit loop's warp vote, compare
 
 
 @njit(cache=True)
-def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c_round, c_ray):
+def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c_round, c_ray, leaf_exit=1):
     """(warp instructions, lane instructions) by phase: visit, leaf, pop, round, ray start. visit_exit K
     (while-while): the visit loop stops once fewer than K lanes are still in it and another lane is at
     its leaf (1: at its last lane); the lanes still between nodes then go on in the next round, the
-    others test their leaf and pop."""
+    others test their leaf and pop. leaf_exit L: the same for the leaf's triangle loop (a lane that
+    stops mid-leaf tests the rest in the next round, before it pops)."""
     n, r_max = rounds.shape[0], rounds.shape[1]
     warp = np.zeros(5)
     lane = np.zeros(5)
     ray = np.full(WARP, -1, np.int64)
     r = np.zeros(WARP, np.int64)
-    left_v = np.zeros(WARP, np.int64)          # if-if: visits left in the lane's round
+    left_v = np.zeros(WARP, np.int64)          # visits left in the lane's round
+    tri_done = np.zeros(WARP, np.int64)        # triangles of the round's leaf tested (leaf_exit)
     nxt = 0
     while True:
         # lanes without a ray take the next ones (a ray outside the scene box is done at once)
         taken = 0
         for k in range(WARP):
             while ray[k] < 0 and nxt < n:
-                ray[k], r[k] = nxt, 0
+                ray[k], r[k], tri_done[k] = nxt, 0, 0
                 nxt += 1
                 taken += 1
                 if rounds[ray[k], 0, 0] < 0:
@@ -98,17 +100,34 @@ def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c
             leafing = np.zeros(WARP, np.bool_)
             for k in range(WARP):
                 leafing[k] = ray[k] >= 0 and left_v[k] == 0
-            for col, cost, slot in ((1, c_tri, 1), (2, c_pop, 2)):
-                it = 0
-                while True:
-                    act = 0
-                    for k in range(WARP):
-                        act += leafing[k] and rounds[ray[k], r[k], col] > it
-                    if act == 0:
-                        break
-                    warp[slot] += cost
-                    lane[slot] += cost * act
-                    it += 1
+            # the leaf's triangles, until fewer than leaf_exit lanes still test and another is done
+            n_leafing = 0
+            for k in range(WARP):
+                n_leafing += leafing[k]
+            while True:
+                act = 0
+                for k in range(WARP):
+                    act += leafing[k] and rounds[ray[k], r[k], 1] > tri_done[k]
+                if act == 0 or (act < leaf_exit and act < n_leafing):
+                    break
+                warp[1] += c_tri
+                lane[1] += c_tri * act
+                for k in range(WARP):
+                    if leafing[k] and rounds[ray[k], r[k], 1] > tri_done[k]:
+                        tri_done[k] += 1
+            for k in range(WARP):                  # a lane with triangles left pops in a later round
+                if leafing[k] and rounds[ray[k], r[k], 1] > tri_done[k]:
+                    leafing[k] = False
+            it = 0
+            while True:
+                act = 0
+                for k in range(WARP):
+                    act += leafing[k] and rounds[ray[k], r[k], 2] > it
+                if act == 0:
+                    break
+                warp[2] += c_pop
+                lane[2] += c_pop * act
+                it += 1
             act = 0
             for k in range(WARP):
                 act += leafing[k]
@@ -123,7 +142,11 @@ def _run_warps(rounds, shape_if, threshold, visit_exit, c_visit, c_tri, c_pop, c
                     left_v[k] -= shape_if     # if-if: this iteration's visit (while-while: visits left)
                     walking += 1
                     continue
+                if not leafing[k]:            # triangles of its leaf left
+                    walking += 1
+                    continue
                 r[k] += 1
+                tri_done[k] = 0
                 if r[k] >= r_max or rounds[ray[k], r[k], 0] < 0:
                     ray[k] = -1
                 else:
@@ -158,6 +181,7 @@ def main():
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--thresholds", default="20")
     ap.add_argument("--visit-exits", default="1,4,8,12", help="while-while: stop the visit loop below K lanes")
+    ap.add_argument("--leaf-exits", default="1", help="while-while: stop the leaf's triangle loop below L lanes")
     args = ap.parse_args()
     c = COSTS
     print("| view | loop | threshold | lanes a warp instruction (of 32) | warp instructions a ray | lane instructions a ray "
@@ -175,15 +199,19 @@ def main():
         n = len(rays.origins)
         merged = rounds_with_pops_in_loop(rounds)
         exits = [int(k) for k in args.visit_exits.split(",")]
-        shapes = ([("while-while", k, False) for k in exits] + [("while-while, pop in loop", k, True) for k in exits]
-                  + [("if-if", 1, False)])
-        for shape, exit_k, pops_in_loop in shapes:
+        leaf_exits = [int(k) for k in args.leaf_exits.split(",")]
+        shapes = ([("while-while", k, False, 1) for k in exits]
+                  + [("while-while, pop in loop", k, True, e) for k in exits for e in leaf_exits]
+                  + [("if-if", 1, False, 1)])
+        for shape, exit_k, pops_in_loop, leaf_k in shapes:
             for thr in (int(t) for t in args.thresholds.split(",")):
                 extra = (VOTE if exit_k > 1 else 0) + (POP_IN_LOOP if pops_in_loop else 0)
                 warp, lane = _run_warps(merged if pops_in_loop else rounds, shape == "if-if", thr, exit_k,
-                                        c["visit"] + extra, c["tri"], c["pop"], c["round"], c["ray"])
+                                        c["visit"] + extra, c["tri"] + (VOTE if leaf_k > 1 else 0), c["pop"],
+                                        c["round"], c["ray"], leaf_k)
                 busy = " / ".join(f"{lane[i] / warp[i]:.1f}" if warp[i] else "-" for i in (0, 1, 2, 4))
                 name = shape if exit_k == 1 else f"{shape}, visits stop below {exit_k} lanes"
+                name += f", triangles below {leaf_k}" if leaf_k > 1 else ""
                 print(f"| {view} | {name} | {thr} | {lane.sum() / warp.sum():.2f} | {warp.sum() / n:.0f} | "
                       f"{lane.sum() / n:.0f} | {busy} |")
 

@@ -13,6 +13,10 @@
 #   visitexit  the ray fetch's visit loop left once fewer than K lanes are still in it (RT_FETCH_VISIT_EXIT=K;
 #              1: at its last lane, as before), diffuse rays at 1024², CUDA (five views) and NVIDIA OpenCL
 #              (DRAGON and CONFERENCE)
+#   leafexit   experiments/prototypes/fetch_leaf_exit.patch applied to a copy of the kernels: the ray fetch's
+#              triangle loop left once fewer than L lanes still test (RT_FETCH_LEAF_EXIT=L), the rest of a
+#              leaf in the next round; diffuse rays at 1024², CUDA (five views) and NVIDIA OpenCL (DRAGON,
+#              CONFERENCE)
 #   wide8      the same walk on 8 float children a node ("bvh8f") against 4 ("bvh4"): diffuse rays at
 #              1024² (the ray fetch), CUDA and NVIDIA OpenCL; "bvh8f" is a traversal only with
 #              experiments/prototypes/bvh8f_traversal.patch applied (`git apply` it before the run)
@@ -58,6 +62,14 @@ for part in "$@"; do
       timeout 260 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$E"
       timeout 150 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
         --views dragon/fill,conference/inside --configs "$E" ;;
+    leafexit)
+      tree=$(mktemp -d)
+      cp -r "$ROOT/kernels" "$tree/" && (cd "$tree" && git apply --include='kernels/*' \
+        "$ROOT/experiments/prototypes/fetch_leaf_exit.patch") || { echo "the leaf-exit patch does not apply"; continue; }
+      L="bvh4;bvh4,tree=$tree,RT_FETCH_LEAF_EXIT=4;bvh4,tree=$tree,RT_FETCH_LEAF_EXIT=6;bvh4,tree=$tree,RT_FETCH_LEAF_EXIT=8"
+      timeout 200 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$L"
+      timeout 120 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
+        --views dragon/fill,conference/inside --configs "$L" ;;
     wide8)
       python -c "from rtlab.device.variants import TRAVERSALS; assert 'bvh8f' in TRAVERSALS" 2>/dev/null \
         || { echo "no bvh8f traversal: git apply experiments/prototypes/bvh8f_traversal.patch first"; continue; }
