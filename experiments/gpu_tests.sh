@@ -1,6 +1,7 @@
 #!/bin/bash
 # The GPU machine's test run: every backend test on CUDA and NVIDIA OpenCL (PoCL is CI's job).
 # Usage (device run, carry .device):  source .device/setup.sh && bash experiments/gpu_tests.sh
+# (tests/test_robustness.py takes longer than one command may run: experiments/gpu_robustness.sh runs it in parallel)
 set -u
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 export RTLAB_TEST_BACKENDS=${RTLAB_TEST_BACKENDS:-cuda,opencl:NVIDIA}
