@@ -10,23 +10,26 @@ next rays together.
 
 Counts warp instructions (a step that any lane takes costs its SASS instructions once) and lane
 instructions (once a lane that takes it), from the costs of the fetch kernel's SASS below. The
-measured side (Nsight Compute, H100, 1024², docs/results/wide-bvh.md): threads a warp instruction 9.65
-on DRAGON, 9.35 on CONFERENCE. "if-if" is the other loop shape of Aila & Laine (2009): each iteration a
+lanes busy that Nsight Compute measures, to hold the model against, are in docs/results/wide-bvh.md
+("A shorter chain on the H100"). "if-if" is the other loop shape of Aila & Laine (2009): each iteration a
 lane either visits one node or, at a leaf, tests its triangles and pops, so lanes between nodes do not
 wait for the others' leaves, nor lanes at leaves for the others' visits. "pop in loop" (rt_bvh4.h's
 RT_FETCH_POP_IN_LOOP): a visit that enters no child pops the next pending one inside the visit loop, so
-a round without a leaf joins the next one (its pops counted as POP_IN_LOOP instructions a visit).
+a round without a leaf joins the next one (its visits added to it; each visit costs POP_IN_LOOP
+instructions more for the test, and the pops made in the loop are not counted). --visit-exits and
+--leaf-exits: the visit loop's early exit (RT_FETCH_VISIT_EXIT) and the same for the leaf's triangle
+loop (experiments/prototypes/fetch_leaf_exit.patch).
 """
 from __future__ import annotations
 
 import argparse
 
 import numpy as np
-from numba import njit
 
 from rtlab.accel.bvh4 import load_or_build_bvh4
 from rtlab.accel.bvh_wide_stats import traversal_counts_bvh4
 from rtlab.benches.rays import make_rays, view_scene
+from rtlab.jit import njit
 
 WARP = 32
 MAX_ROUNDS = 256

@@ -277,10 +277,9 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
  * - with RT_FETCH_POP_IN_LOOP, a visit that enters no child pops the next pending one inside the
  *   loop, so the lane stays in it until it reaches a leaf (or its ray is done) instead of spending a
  *   round without one, idle while the others test their leaves.
- * Both raise the lanes busy a warp instruction (a third of the warp before). Chosen on the H100
- * (docs/results.md, "The ray fetch's visit loop left early, and pops in the loop"): the two together
- * +5 to +13 % on the indoor views' diffuse rays, −1 to −3 % on BUNNY's and DRAGON's;
- * experiments/fetch_lane_model.py models the lanes busy. */
+ * Both raise the lanes busy a warp instruction, where diffuse rays leave most of a warp idle. Chosen
+ * on the H100 (docs/results.md, "The ray fetch's visit loop left early, and pops in the loop", with
+ * the scenes where they lose); experiments/fetch_lane_model.py models the lanes busy. */
 #ifndef RT_FETCH_VISIT_EXIT
 #define RT_FETCH_VISIT_EXIT 6
 #endif
