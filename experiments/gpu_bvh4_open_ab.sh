@@ -17,9 +17,10 @@
 #              triangle loop left once fewer than L lanes still test (RT_FETCH_LEAF_EXIT=L), the rest of a
 #              leaf in the next round; diffuse rays at 1024², CUDA (five views) and NVIDIA OpenCL (DRAGON,
 #              CONFERENCE)
-#   pushrefs   experiments/prototypes/fetch_push_refs.patch applied to a copy of the kernels: the ray fetch's
-#              stack holds each pending child's ref (RT_FETCH_PUSH_REFS=1), so that a pop reads no node;
-#              diffuse rays at 1024², CUDA (five views) and NVIDIA OpenCL (DRAGON, CONFERENCE)
+#   pushrefs   the ray fetch's stack holding the children's refs (RT_FETCH_PUSH_REFS=1, the default: a pop
+#              reads no node) against node rows (0) and its own register cap of 64 (the default) against
+#              the program's 72 (RT_FETCH_MAX_REGISTERS=0; CUDA only, NVIDIA's OpenCL caps programs) and
+#              56; diffuse rays at 1024², CUDA and NVIDIA OpenCL (five views)
 #   wide8      the same walk on 8 float children a node ("bvh8f") against 4 ("bvh4"): diffuse rays at
 #              1024² (the ray fetch), CUDA and NVIDIA OpenCL; "bvh8f" is a traversal only with
 #              experiments/prototypes/bvh8f_traversal.patch applied (`git apply` it before the run)
@@ -74,13 +75,10 @@ for part in "$@"; do
       timeout 120 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
         --views dragon/fill,conference/inside --configs "$L" ;;
     pushrefs)
-      tree=$(mktemp -d)
-      cp -r "$ROOT/kernels" "$tree/" && (cd "$tree" && git apply --include='kernels/*' \
-        "$ROOT/experiments/prototypes/fetch_push_refs.patch") || { echo "the push-refs patch does not apply"; continue; }
-      P="bvh4;bvh4,tree=$tree,RT_FETCH_PUSH_REFS=1"
-      timeout 120 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs "$P"
-      timeout 90 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
-        --views dragon/fill,conference/inside --configs "$P" ;;
+      timeout 200 python ab_trace_configs.py --backend cuda $R --kinds diffuse --size 1024 --views $V5 --configs \
+        "bvh4,RT_FETCH_PUSH_REFS=0,RT_FETCH_MAX_REGISTERS=0;bvh4,RT_FETCH_MAX_REGISTERS=0;bvh4;bvh4,RT_FETCH_MAX_REGISTERS=56"
+      timeout 120 python ab_trace_configs.py --backend opencl --device NVIDIA $R --kinds diffuse --size 1024 \
+        --views $V5 --configs "bvh4,RT_FETCH_PUSH_REFS=0;bvh4" ;;
     wide8)
       python -c "from rtlab.device.variants import TRAVERSALS; assert 'bvh8f' in TRAVERSALS" 2>/dev/null \
         || { echo "no bvh8f traversal: git apply experiments/prototypes/bvh8f_traversal.patch first"; continue; }

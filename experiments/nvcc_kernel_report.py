@@ -21,7 +21,7 @@ from pathlib import Path
 
 from rtlab.backends.base import CUDA_PRECISION_OPTIONS
 from rtlab.backends.nvcc import parse_ptxas
-from rtlab.device.kernels import SceneFeatures, Variant, build_defines
+from rtlab.device.kernels import SceneFeatures, Variant, build_defines, build_options
 
 # A SPONZA-sized scene with lights, reflective and transparent materials: every shading feature in
 FEATURES = SceneFeatures(stack_size=48, smooth_normals=False, n_lights=1, n_materials=16, near_origin=True)
@@ -81,7 +81,8 @@ def report(source: Path, variant: Variant, extra: dict, sass_dir: Path | None = 
     with tempfile.TemporaryDirectory() as tmp:
         cubin = Path(tmp) / "k.cubin"
         cmd = ["nvcc", "-cubin", "-arch=sm_90", "-Xptxas", "-v", f"-I{source.resolve().parent.parent / 'shared'}",
-               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS, "-o", str(cubin), str(source)]
+               *[f"-D{k}={v}" for k, v in sorted(defines.items())], *CUDA_PRECISION_OPTIONS,
+               *build_options(variant, "cuda", source.stem), "-o", str(cubin), str(source)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode:
             return [f"{variant.label()}: build failed\n{proc.stderr}"]
@@ -106,9 +107,11 @@ def report(source: Path, variant: Variant, extra: dict, sass_dir: Path | None = 
 
 
 def parse_variant(text: str) -> Variant:
-    traversal, isect, block = text.split("/")
+    """traversal/intersection/BXxBY, optionally /rNN: a register cap in place of the program's own"""
+    traversal, isect, block, *cap = text.split("/")
     bx, by = (int(b) for b in block.split("x"))
-    return Variant(traversal=traversal, intersection=isect, block=(bx, by))
+    regs = int(cap[0].lstrip("r")) if cap else 0
+    return Variant(traversal=traversal, intersection=isect, block=(bx, by), max_registers=regs)
 
 
 def main():

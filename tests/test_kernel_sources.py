@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from rtlab.backends.nvcc import nvcc_available, nvcc_resources
-from rtlab.device.kernels import (SceneFeatures, Variant, build_defines, kernel_programs, kernel_source, lab_steps,
-                                  unpaired_steps)
+from rtlab.device.kernels import (SceneFeatures, Variant, build_defines, build_options, kernel_programs,
+                                  kernel_source, lab_steps, unpaired_steps)
+from rtlab.device.variants import GPU_RAYS_VARIANT
 from rtlab.device.layout import STRUCT_SIZES
 from rtlab.paths import PACKAGE_DIR
 
@@ -32,6 +33,19 @@ def test_cuda_step_compiles_for_sm90(step):
         print(f"{step}:{name}: {r.registers} registers, {r.local_bytes} B stack, {r.spill_bytes} B spills, "
               f"occupancy {r.occupancy:.0%} at 128 threads")
         assert 0 < r.registers <= 255
+
+
+@pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
+def test_cuda_ray_fetch_takes_its_own_register_cap():
+    """trace()'s ray fetch on the 4-wide tree is built in at most 64 registers (32 warps an SM) with
+    nothing spilled, under the library program's cap of 72 that its other kernels still use: the cap
+    is the kernel's own (rt_entry_trace.h, RT_FETCH_BOUNDS), not the program's."""
+    features = SceneFeatures(stack_size=32, n_lights=0, n_materials=1)
+    report = nvcc_resources(kernel_source("library_trace", "cuda"), build_defines(GPU_RAYS_VARIANT, features),
+                            extra_options=build_options(GPU_RAYS_VARIANT, "cuda", "library_trace"))
+    fetch = report["trace_rays_fetch"]
+    assert fetch.registers <= 64 and fetch.spill_bytes == 0, fetch
+    assert max(r.registers for r in report.values()) > 64, "the other kernels keep the program's cap of 72"
 
 
 @pytest.mark.parametrize("step", kernel_programs())

@@ -264,7 +264,10 @@ def test_camera_rays_go_in_tiles_without_being_asked(backend, small_scene, monke
 @pytest.mark.parametrize("traversal,isect,defines", [("bvh", "watertight", None), ("bvh", "moller", None),
                                                      ("bvh4", "watertight", None), ("bvh4", "moller", None),
                                                      ("bvh4", "watertight", {"RT_FETCH_VISIT_EXIT_EACH": 1}),
-                                                     ("bvh4", "watertight", {"RT_FETCH_VISIT_EXIT": 1})])
+                                                     ("bvh4", "watertight", {"RT_FETCH_VISIT_EXIT": 1}),
+                                                     ("bvh4", "watertight", {"RT_FETCH_PUSH_REFS": 0}),
+                                                     ("bvh4", "watertight", {"RT_FETCH_PUSH_REFS": 0,
+                                                                             "RT_FETCH_VISIT_EXIT_EACH": 1})])
 def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, isect, defines, monkeypatch):
     """trace_rays_fetch (a lane takes the next ray when its own is done; the walk resumes after each
     refill) returns trace_rays' hits bit for bit, on incoherent rays of a real scene, rays that miss
@@ -273,7 +276,8 @@ def test_rays_fetched_as_lanes_free_up_give_trace_rays_hits(backend, traversal, 
     RT_FETCH_VISIT_EXIT_EACH the 4-wide walk also leaves its visit loop after every node, as a lane
     does whose warp leaves it early (rt_bvh4.h, RT_FETCH_VISIT_EXIT), and resumes between nodes; with
     RT_FETCH_VISIT_EXIT=1 it takes Aila & Laine's plain while-while schedule (no early exit, no pops in
-    the visit loop)."""
+    the visit loop); with RT_FETCH_PUSH_REFS=0 its stack holds node rows, as the closest-hit walk's
+    does, instead of the children's refs."""
     from rtlab.device import tracing
     scene = rtlab.load_scene("default", size=24)
     o, d = camera_rays(scene.camera)

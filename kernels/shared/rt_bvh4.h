@@ -128,9 +128,10 @@ RT_FN void bvh4_order(unsigned int *a, unsigned int *b)
 
 /* Test the four children of the node at row `row`; push all hit within the cut (bvh4_cut) but the
  * nearest (farthest first) and return the nearest, or BVH4_NONE when none is. *top gets a copy of the
- * stack's top entry where it changes (bvh4_pop_top). */
+ * stack's top entry where it changes (bvh4_pop_top). With push_refs an entry's .row holds the child's
+ * ref instead of its node's row, so that its pop reads no node (bvh4_pop says which walk does). */
 RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cut, Bvh4Entry *stack, int *sp,
-                     Bvh4Entry *top)
+                     Bvh4Entry *top, int push_refs)
 {
     float4 nx = load_node_data(node_data, row + r->near_x), fx = load_node_data(node_data, row + (r->near_x ^ 1));
     float4 ny = load_node_data(node_data, row + r->near_y), fy = load_node_data(node_data, row + (r->near_y ^ 1));
@@ -155,16 +156,16 @@ RT_FN int bvh4_visit(RT_SCENE_PARAMS, int row, const Bvh4Ray *r, unsigned int cu
     /* The others farthest first, where a second child is hit before the cut (misses, then children
      * beyond the cut, sort last, so those to push are k1, k2, k3 in order: k3 and k2 are written and
      * counted only if hit before the cut, the stack has 3 spare entries).
-     * No ref is picked for them here (the pop reads it from the node). */
+     * Without push_refs no ref is picked for them here (the pop reads it from the node). */
     if (bvh4_hit_key(k1, cut)) {
         int n = *sp;
-        stack[n].row = row;
+        stack[n].row = push_refs ? rt_as_int(get4(refs, (int)(k3 & 3))) : row;
         stack[n].key = (int)k3;
         n += bvh4_hit_key(k3, cut);
-        stack[n].row = row;
+        stack[n].row = push_refs ? rt_as_int(get4(refs, (int)(k2 & 3))) : row;
         stack[n].key = (int)k2;
         n += bvh4_hit_key(k2, cut);
-        stack[n].row = row;
+        stack[n].row = push_refs ? rt_as_int(get4(refs, (int)(k1 & 3))) : row;
         stack[n].key = (int)k1;
         *sp = n + 1;
         top->row = row;
@@ -180,15 +181,17 @@ RT_FN int bvh4_entry_ref(RT_SCENE_PARAMS, Bvh4Entry e)
 }
 
 /* The most recent pending child that may still hold a hit as close as the closest hit so far (its
- * key within the cut, bvh4_cut),
- * or BVH4_NONE */
-RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, unsigned int cut)
+ * key within the cut, bvh4_cut), or BVH4_NONE. push_refs as the visit pushed them (bvh4_visit): the
+ * ray fetch's walk pushes refs, since it pops inside its visit loop, where a pop's node read would
+ * stand between the stack's read and the next visit's; the closest-hit walk reads the ref from the
+ * node (its visit stays shorter; bvh4_pop_top takes the stack read off its path instead). */
+RT_FN int bvh4_pop(RT_SCENE_PARAMS, const Bvh4Entry *stack, int *sp, unsigned int cut, int push_refs)
 {
     while (*sp > 0) {
         --*sp;
         Bvh4Entry e = stack[*sp];
         if (bvh4_hit_key((unsigned int)e.key, cut))
-            return bvh4_entry_ref(RT_SCENE_ARGS, e);
+            return push_refs ? e.row : bvh4_entry_ref(RT_SCENE_ARGS, e);
     }
     return BVH4_NONE;
 }
@@ -240,7 +243,7 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     for (;;) {
         /* Inner nodes: enter the nearest child hit */
         while (ref >= 0)
-            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, cut, stack, &sp, &top);
+            ref = bvh4_visit(RT_SCENE_ARGS, ref, &r, cut, stack, &sp, &top, 0);
         /* A leaf: its triangles' rows */
         if (ref != BVH4_NONE) {
             if (bvh4_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit))
@@ -286,6 +289,9 @@ RT_FN void bvh4_trace_start(Bvh4Trace *s, float4 scene_min, float4 scene_max)
 #ifndef RT_FETCH_POP_IN_LOOP
 #define RT_FETCH_POP_IN_LOOP 1
 #endif
+#ifndef RT_FETCH_PUSH_REFS
+#define RT_FETCH_PUSH_REFS 1         /* the ray fetch's stack holds the children's refs (bvh4_pop) */
+#endif
 #ifndef RT_FETCH_VISIT_EXIT_EACH
 #define RT_FETCH_VISIT_EXIT_EACH 0   /* tests: leave it after every visit (PoCL has no warp to count) */
 #endif
@@ -301,10 +307,10 @@ RT_FN void bvh4_fetch_visits(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack, un
         int in_loop = rt_warp_active();
         if ((in_loop < RT_FETCH_VISIT_EXIT && in_loop < walking) || (RT_FETCH_VISIT_EXIT_EACH && visited))
             break;
-        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
+        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top, RT_FETCH_PUSH_REFS);
 #if RT_FETCH_POP_IN_LOOP
         if (s->ref == BVH4_NONE) {            /* no child entered: the next pending one */
-            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
+            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut, RT_FETCH_PUSH_REFS);
             if (s->ref == BVH4_NONE)
                 s->ref = BVH_DONE;
         }
@@ -313,7 +319,7 @@ RT_FN void bvh4_fetch_visits(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack, un
     }
 #else
     while ((unsigned int)s->ref < (unsigned int)BVH_DONE)
-        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top);
+        s->ref = bvh4_visit(RT_SCENE_ARGS, s->ref, &s->fused, cut, stack, &s->sp, &unused_top, RT_FETCH_PUSH_REFS);
 #endif
 }
 
@@ -327,7 +333,7 @@ RT_FN void bvh4_trace_steps(RT_SCENE_PARAMS, Bvh4Trace *s, Bvh4Entry *stack)
                 bvh4_leaf(RT_SCENE_ARGS, s->ref, &s->ray, &s->hit, 0);
                 cut = bvh4_cut(&s->fused, s->hit.t);
             }
-            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut);
+            s->ref = bvh4_pop(RT_SCENE_ARGS, stack, &s->sp, cut, RT_FETCH_PUSH_REFS);
             if (s->ref == BVH4_NONE)
                 s->ref = BVH_DONE;
         }

@@ -63,12 +63,25 @@ typedef Bvh4Entry FetchEntry;
 #define RT_FETCH_STACK (RT_STACK_SIZE + 3)
 #define fetch_trace_start bvh4_trace_start
 #define fetch_trace_steps bvh4_trace_steps
+/* CUDA: 64 registers (32 warps an SM) rather than the program's 72 (28). With its stack holding refs
+ * the 4-wide fetch walk fits without spilling, and the more warps hide more of its memory latency.
+ * NVIDIA's OpenCL caps programs only and keeps 72 (docs/results.md, "The ray fetch's stack holding
+ * refs, and 64 registers") */
+#ifndef RT_FETCH_MAX_REGISTERS
+#define RT_FETCH_MAX_REGISTERS 64      /* 0: the program's cap (A/Bs) */
+#endif
+#if RT_FETCH_MAX_REGISTERS
+#define RT_FETCH_BOUNDS RT_KERNEL_MAX_REGISTERS(RT_FETCH_MAX_REGISTERS)
+#else
+#define RT_FETCH_BOUNDS
+#endif
 #else
 typedef BvhTrace FetchTrace;
 typedef int FetchEntry;
 #define RT_FETCH_STACK RT_STACK_SIZE
 #define fetch_trace_start bvh_trace_start
 #define fetch_trace_steps bvh_trace_steps
+#define RT_FETCH_BOUNDS
 #endif
 
 /* trace_rays with rays fetched as lanes free up (rt_bvh.h's bvh_trace_steps): each lane takes ray
@@ -76,7 +89,7 @@ typedef int FetchEntry;
  * trace_rays. Launch as many threads as trace_rays would: those that start after the rays are
  * taken leave at once. Only the library's program declares it (RT_FETCH_KERNEL): the lab steps'
  * kernels stay the paper's. */
-RT_KERNEL void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
+RT_KERNEL RT_FETCH_BOUNDS void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
                                 int n_rays, RT_GLOBAL int *next_ray RT_WITH_FRAME)
 {
     FetchEntry stack[RT_FETCH_STACK];

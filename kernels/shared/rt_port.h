@@ -92,6 +92,7 @@
 #define RT_REFINE_CALL 1           /* its doubles off the walk's registers (docs/results.md) */
 #endif
 #define RT_KERNEL extern "C" __global__
+#define RT_KERNEL_MAX_REGISTERS(n) __maxnreg__(n)  /* one kernel's cap, under the program's -maxrregcount */
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
 #define RT_CONST
 #define RT_SHARED_PTR               /* a pointer to block-wide (__shared__) memory: generic address space */
@@ -161,6 +162,7 @@ RT_FN void rt_atomic_add_float(RT_GLOBAL float *p, float v) { atomicAdd(p, v); }
 #endif
 #endif
 #define RT_KERNEL __kernel
+#define RT_KERNEL_MAX_REGISTERS(n)  /* OpenCL has no per-kernel cap: the program's (-cl-nv-maxrregcount) */
 #define RT_GLOBAL __global
 #if RT_CONST_MEM == RT_MEM_GLOBAL  /* frame, lights, materials passed as global buffers (§3.1.1 study) */
 #define RT_CONST __global
