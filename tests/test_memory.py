@@ -185,13 +185,14 @@ class _FakeNvidia:
 
 def test_register_cap_options():
     v = Variant.paper(max_registers=48)
-    assert build_options(v, "cuda") == ("-maxrregcount=48",)
+    own = "-DRT_FETCH_MAX_REGISTERS=0"          # the variant's cap also binds the kernel with a cap of its own
+    assert build_options(v, "cuda") == ("-maxrregcount=48", own)
     assert build_options(v, _FakeNvidia()) == ("-cl-nv-maxrregcount=48",)
     assert build_options(Variant.paper(), "cuda") == ()
     # the Whitted program's own cap where the variant names none; the variant's cap first; labs none
     assert build_options(Variant.paper(), "cuda", "library_bounces") == ("-maxrregcount=64",)
     assert build_options(Variant.paper(), _FakeNvidia(), "library_bounces") == ("-cl-nv-maxrregcount=64",)
-    assert build_options(v, "cuda", "library_bounces") == ("-maxrregcount=48",)
+    assert build_options(v, "cuda", "library_bounces") == ("-maxrregcount=48", own)
     assert build_options(Variant.paper(), "cuda", "05_kernel_tree") == ()
     assert build_options(Variant.paper(), "opencl", "library_bounces") == ()      # PoCL: no register file
 
@@ -218,7 +219,8 @@ def test_trace_program_cap_reaches_nvcc():
     every trace kernel stays within 72 registers, and on NVIDIA's OpenCL. The binary BVH's trace
     kernels get no cap (ptxas would take it as leave to use more). A variant's own cap comes first, and
     as the loader words it, it reaches ptxas: the ray fetch, above 48 registers free, is built within
-    48 (the default cap may not bind: the kernels can fit under it uncapped)."""
+    48 (the default cap may not bind: the kernels can fit under it uncapped), the fetch's own cap of 64
+    (rt_entry_trace.h) giving way to it."""
     features = SceneFeatures(stack_size=48, near_origin=True)
     src = kernel_source("library_trace", "cuda")
     wide = build_defines(Variant(traversal="bvh4", intersection="watertight", block=(8, 16)), features)
@@ -231,7 +233,7 @@ def test_trace_program_cap_reaches_nvcc():
     assert build_options(Variant(traversal="bvh4"), "opencl", "library_trace") == ()     # PoCL: no register file
     assert build_options(Variant(traversal="bvh"), "cuda", "library_trace") == ()
     named = build_options(Variant(traversal="bvh4", max_registers=48), "cuda", "library_trace")
-    assert named == ("-maxrregcount=48",)
+    assert named == ("-maxrregcount=48", "-DRT_FETCH_MAX_REGISTERS=0")
     free, tight = nvcc_resources(src, wide), nvcc_resources(src, wide, extra_options=named)
     assert free["trace_rays_fetch"].registers > 48 >= tight["trace_rays_fetch"].registers, \
         "the variant's cap did not reach ptxas"

@@ -153,14 +153,16 @@ LIBRARY_REGISTER_CAPS = {"library_bounces": 64, ("library_trace", "bvh4"): 72}
 def build_options(variant: Variant, backend, program: str | None = None) -> tuple[str, ...]:
     """Compiler options beyond the defines: the register cap of the paper's Fig. 5 study, or where the
     variant names none, ``program``'s LIBRARY_REGISTER_CAPS. ``backend`` is a Backend or a language
-    name ("cuda" for nvcc). PoCL has no register file to cap: none there."""
+    name ("cuda" for nvcc). PoCL has no register file to cap: none there. On CUDA a variant's own cap
+    binds every kernel, also the one kernel that otherwise takes a cap of its own (the ray fetch,
+    rt_entry_trace.h's RT_FETCH_MAX_REGISTERS)."""
     language = backend if isinstance(backend, str) else backend.language
     n = int(variant.max_registers or LIBRARY_REGISTER_CAPS.get((program, variant.traversal))
             or LIBRARY_REGISTER_CAPS.get(program, 0))
     if not n:
         return ()
     if language == "cuda":
-        return (f"-maxrregcount={n}",)
+        return (f"-maxrregcount={n}",) + (("-DRT_FETCH_MAX_REGISTERS=0",) if variant.max_registers else ())
     if not isinstance(backend, str) and getattr(backend, "is_nvidia", lambda: False)():
         return (f"-cl-nv-maxrregcount={n}",)
     return ()
