@@ -89,8 +89,8 @@ typedef int FetchEntry;
  * trace_rays. Launch as many threads as trace_rays would: those that start after the rays are
  * taken leave at once. Only the library's program declares it (RT_FETCH_KERNEL): the lab steps'
  * kernels stay the paper's. */
-RT_KERNEL RT_FETCH_BOUNDS void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions, RT_OUT(float4) hits,
-                                int n_rays, RT_GLOBAL int *next_ray RT_WITH_FRAME)
+RT_KERNEL RT_FETCH_BOUNDS void trace_rays_fetch(RT_SCENE_PARAMS, RT_IN(float4) origins, RT_IN(float4) directions,
+                                                RT_OUT(float4) hits, int n_rays, RT_GLOBAL int *next_ray RT_WITH_FRAME)
 {
     FetchEntry stack[RT_FETCH_STACK];
     FetchTrace s;

@@ -92,7 +92,11 @@
 #define RT_REFINE_CALL 1           /* its doubles off the walk's registers (docs/results.md) */
 #endif
 #define RT_KERNEL extern "C" __global__
+#if __CUDACC_VER_MAJOR__ > 12 || (__CUDACC_VER_MAJOR__ == 12 && __CUDACC_VER_MINOR__ >= 4)
 #define RT_KERNEL_MAX_REGISTERS(n) __maxnreg__(n)  /* one kernel's cap, under the program's -maxrregcount */
+#else
+#define RT_KERNEL_MAX_REGISTERS(n)  /* nvcc before 12.4 has no __maxnreg__: the program's cap */
+#endif
 #define RT_GLOBAL                   /* address-space qualifiers: empty in CUDA (generic addressing) */
 #define RT_CONST
 #define RT_SHARED_PTR               /* a pointer to block-wide (__shared__) memory: generic address space */
