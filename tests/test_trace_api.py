@@ -215,9 +215,11 @@ def test_directions_are_rescaled_in_their_own_dtype(backend, sphere_scene, lengt
     float32's range)."""
     unit = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend)
     assert unit.tri[:2].min() >= 0 and unit.tri[2] < 0
+    f32 = np.finfo(np.float32)
     for dtype in (np.float64, np.float32):
         d = RAYS_D.astype(np.float64) * length
-        if dtype == np.float32 and not np.finfo(np.float32).smallest_subnormal <= length <= np.finfo(np.float32).max:
+        # compared as Python floats: against a float32 bound NumPy would cast `length` to float32 first
+        if dtype == np.float32 and not float(f32.smallest_subnormal) <= length <= float(f32.max):
             continue
         d = d.astype(dtype)
         assert np.any(d != 0)
