@@ -3,6 +3,7 @@ structs agree in size."""
 from __future__ import annotations
 
 import re
+import subprocess
 
 import numpy as np
 import pytest
@@ -44,6 +45,11 @@ def test_cuda_ray_fetch_takes_its_own_register_cap():
     report = nvcc_resources(kernel_source("library_trace", "cuda"), build_defines(GPU_RAYS_VARIANT, features),
                             extra_options=build_options(GPU_RAYS_VARIANT, "cuda", "library_trace"))
     fetch = report["trace_rays_fetch"]
+    release = re.search(r"release (\d+)\.(\d+)", subprocess.run(["nvcc", "--version"], capture_output=True,
+                                                                 text=True).stdout)
+    if release and (int(release[1]), int(release[2])) < (12, 4):       # no __maxnreg__: the program's cap
+        assert fetch.registers <= 72, fetch
+        return
     assert fetch.registers <= 64 and fetch.spill_bytes == 0, fetch
     assert max(r.registers for r in report.values()) > 64, "the other kernels keep the program's cap of 72"
 
