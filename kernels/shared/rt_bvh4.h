@@ -39,8 +39,9 @@
 #define BVH4_NONE (-2147483647 - 1)  /* no child: not a leaf ref (its row would be 2^27 - 1) */
 #define BVH4_MISS 0xFFFFFFFFu        /* the sort key of a child not hit (bvh4_key) */
 
-/* A pending child: the row of the node that holds it and its sort key (bvh4_key: the entry distance's
- * bits with the child's slot in the two low bits) */
+/* A pending child: the row of the node that holds it (where the walk pushes refs, bvh4_visit's
+ * push_refs, the child's own ref instead) and its sort key (bvh4_key: the entry distance's bits with
+ * the child's slot in the two low bits) */
 typedef struct {
     int row;
     int key;
