@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import rtlab
-from rtlab.benches.rays import diffuse_rays, make_rays, peer_figures
+from rtlab.benches.rays import RaysRow, diffuse_rays, make_rays, peer_figures, peer_source, rays_markdown
 from rtlab.device.kernels import Variant
 from rtlab.device.tracing import ray_buffers, trace
 from rtlab.reference import compare_hits, reference_trace
@@ -109,6 +109,22 @@ def test_bench_batch_checks_an_even_subsample(tmp_path):
     assert np.all(np.diff(batch.check_index) == batch.check_index[1])
     far = peer_figures()[("bunny/far", "primary", 1024)]
     assert far["best"] == max(far["warp"], far["optix"], far["tinybvh"]) == far[far["best_name"]]
+
+
+def test_bench_rays_says_which_machine_its_peer_ratio_spans():
+    """The "× best peer" column divides this run's figure by a figure the peers' README took on its
+    own machine: the table names that machine, and says so where a row ran on another one."""
+    device, date = peer_source()
+
+    def markdown(devices):
+        rows = [RaysRow("bunny/far", "primary", 1024, "cuda", d, "bvh4", 1 << 20, 0.1, 1e4, (0.1, 0.1),
+                        peer=peer_figures()[("bunny/far", "primary", 1024)]) for d in devices]
+        return rays_markdown(rows, "rtlab bench rays")
+
+    same = markdown([device])
+    assert f"measured on the {device} ({date})" in same and "two machines" not in same
+    other = markdown([device, "NVIDIA H200"])
+    assert "NVIDIA H200 is another device" in other and "two machines" in other
 
 
 @pytest.mark.gpu

@@ -32,6 +32,24 @@ CHECK_RAYS = 65_536          # rays of a batch checked against the float64 refer
 PEERS = ("warp", "optix", "tinybvh")
 
 
+def peer_source() -> tuple[str, str]:
+    """The device and date the peers' figures were measured on (peer_figures.json)."""
+    data = json.loads(PEER_FIGURES_FILE.read_text())
+    return data["device"], data["date"]
+
+
+def peer_note(devices) -> str:
+    """What the "× best peer" column compares: the peers' machine, and a caution where a row of this
+    run was timed on another device (the ratio then spans two machines, not one run)."""
+    device, date = peer_source()
+    note = f"best peer: ../shared/bench/README.md's figures, measured on the {device} ({date})"
+    others = sorted({d for d in devices if d != device})
+    if others:
+        note += (f"; this run's {', '.join(others)} is another device, so × best peer compares two "
+                 f"machines, not one run")
+    return note
+
+
 def peer_figures() -> dict[tuple[str, str, int], dict]:
     """(view, kind, size) -> {"warp": Mrays/s, "optix": ..., "tinybvh": ..., "best": ..., "best_name": ...}."""
     data = json.loads(PEER_FIGURES_FILE.read_text())
@@ -203,7 +221,7 @@ def table_rows(rows: list[RaysRow]) -> list[tuple[str, ...]]:
 
 
 def rays_tables(rows: list[RaysRow]) -> list[Table]:
-    return [Table(COLUMNS, table_rows(rows), "rays through rtlab.trace")]
+    return [Table(COLUMNS, table_rows(rows), "rays through rtlab.trace", note=peer_note(r.device for r in rows))]
 
 
 def rays_markdown(rows: list[RaysRow], command: str) -> str:
