@@ -116,15 +116,16 @@ def test_bench_rays_says_which_machine_its_peer_ratio_spans():
     own machine: the table names that machine, and says so where a row ran on another one."""
     device, date = peer_source()
 
-    def markdown(devices):
-        rows = [RaysRow("bunny/far", "primary", 1024, "cuda", d, "bvh4", 1 << 20, 0.1, 1e4, (0.1, 0.1),
-                        peer=peer_figures()[("bunny/far", "primary", 1024)]) for d in devices]
+    def markdown(devices, size=1024):
+        rows = [RaysRow("bunny/far", "primary", size, "cuda", d, "bvh4", size * size, 0.1, 1e4, (0.1, 0.1),
+                        peer=peer_figures().get(("bunny/far", "primary", size))) for d in devices]
         return rays_markdown(rows, "rtlab bench rays")
 
     same = markdown([device])
     assert f"measured on the {device} ({date})" in same and "two machines" not in same
     other = markdown([device, "NVIDIA H200"])
     assert "NVIDIA H200 is another device" in other and "two machines" in other
+    assert "best peer:" not in markdown(["NVIDIA H200"], size=64)    # no peer figure, no note
 
 
 @pytest.mark.gpu

@@ -221,7 +221,9 @@ def table_rows(rows: list[RaysRow]) -> list[tuple[str, ...]]:
 
 
 def rays_tables(rows: list[RaysRow]) -> list[Table]:
-    return [Table(COLUMNS, table_rows(rows), "rays through rtlab.trace", note=peer_note(r.device for r in rows))]
+    with_peer = [r for r in rows if r.peer]           # sizes and views the peers did not trace have none
+    note = peer_note(r.device for r in with_peer) if with_peer else ""
+    return [Table(COLUMNS, table_rows(rows), "rays through rtlab.trace", note=note)]
 
 
 def rays_markdown(rows: list[RaysRow], command: str) -> str:
