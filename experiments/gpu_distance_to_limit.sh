@@ -1,5 +1,5 @@
 #!/bin/bash
-# How far the library's kernels are from what the GPU (the H100, now the H200: one Hopper chip) can do, by Nsight Compute, for trace()
+# How far the library's kernels are from what the GPU (a Hopper chip: H100 or H200) can do, by Nsight Compute, for trace()
 # (primary rays in tiles, diffuse rays; the GPU default, CUDA) and the kernels of one Whitted frame
 # (SPONZA, shadows + 3 bounces, wavefront, bvh/Moller/8x8). Parts:
 #   limit (default): speed-of-light, compute-workload and occupancy sections, then the camera rays of

@@ -32,9 +32,13 @@ CHECK_RAYS = 65_536          # rays of a batch checked against the float64 refer
 PEERS = ("warp", "optix", "tinybvh")
 
 
+def _peer_data() -> dict:
+    return json.loads(PEER_FIGURES_FILE.read_text())
+
+
 def peer_source() -> tuple[str, str]:
     """The device and date the peers' figures were measured on (peer_figures.json)."""
-    data = json.loads(PEER_FIGURES_FILE.read_text())
+    data = _peer_data()
     return data["device"], data["date"]
 
 
@@ -52,7 +56,7 @@ def peer_note(devices) -> str:
 
 def peer_figures() -> dict[tuple[str, str, int], dict]:
     """(view, kind, size) -> {"warp": Mrays/s, "optix": ..., "tinybvh": ..., "best": ..., "best_name": ...}."""
-    data = json.loads(PEER_FIGURES_FILE.read_text())
+    data = _peer_data()
     out = {}
     for r in data["rows"]:
         names = [k for k in PEERS if k in r]
