@@ -15,7 +15,9 @@ a random q %", the heavy rays do not set the launch's length.
 
 ``--lone`` times the costliest rays by themselves on an idle GPU instead (lone_sets): a ray's own
 latency, without the load of a launch; ``--configs "default;RT_FETCH_POP_IN_LOOP=0"`` repeats the
-fetch's sets under other -D switches of its walk.
+fetch's sets under other -D switches of its walk. ``--describe`` (host only, no device) says what the
+costliest rays are: their walks at 4 and 8 children a node, their angle to the surface they leave,
+how many hit.
 """
 from __future__ import annotations
 
@@ -101,6 +103,37 @@ def subsets(cost: np.ndarray, percents: list[float], seed: int = 7) -> dict[str,
     return sets
 
 
+def describe(batch, nodes, tris, cost) -> None:
+    """--describe: the costliest rays against the batch, on the host mirrors. A diffuse ray's cosine to
+    the surface it leaves is sqrt(1 - u1), u1 its first draw of the bench's generator
+    (rtlab.benches.rays.diffuse_rays)."""
+    from bvh_width_chain import wide_walk_arrays
+    from rtlab.accel.bvh_wide_stats import traversal_counts_wide
+    from rtlab.reference import reference_trace
+    n = len(cost)
+    cosine = np.sqrt(1.0 - np.random.default_rng(1).random(n))
+    ranked = np.argsort(-cost, kind="stable")
+    eight = wide_walk_arrays(batch.scene.vertices, batch.scene.faces, 8)
+    print("| rays | node visits (trace()'s 4-wide tree) | triangle tests | node visits (8 float children a node, "
+          "bvh_width_chain.py's tree) | cosine to the surface, median | cosine < 0.1 | hit the scene |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for label, idx in ((f"the costliest {k}", ranked[:k]) for k in (32, 306, 3000)):
+        o = np.asarray(batch.origins, np.float64)[idx]
+        d = np.asarray(batch.directions, np.float64)[idx]
+        v8 = traversal_counts_wide(eight, batch.scene.vertices, batch.scene.faces, o, d)[0]
+        hit = reference_trace(batch.scene.vertices, batch.scene.faces, o, d).tri >= 0
+        print(f"| {label} | {nodes[idx].mean():.1f} | {tris[idx].mean():.1f} | {np.mean(v8):.1f} | "
+              f"{np.median(cosine[idx]):.2f} | {np.mean(cosine[idx] < 0.1):.0%} | {np.mean(hit):.0%} |")
+    sample = np.arange(0, n, max(1, n // 20000))
+    o = np.asarray(batch.origins, np.float64)[sample]
+    d = np.asarray(batch.directions, np.float64)[sample]
+    v8 = traversal_counts_wide(eight, batch.scene.vertices, batch.scene.faces, o, d)[0]
+    hit = reference_trace(batch.scene.vertices, batch.scene.faces, o, d).tri >= 0
+    print(f"| the batch ({n:,}; 8 children and hits on {len(sample):,} of them) | {nodes.mean():.1f} | "
+          f"{tris.mean():.1f} | {np.mean(v8):.1f} | {np.median(cosine):.2f} | {np.mean(cosine < 0.1):.0%} | "
+          f"{np.mean(hit):.0%} |")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--backend", default="cuda")
@@ -111,12 +144,14 @@ def main(argv=None) -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--lone", action="store_true", help="time the costliest rays by themselves (lone_sets)")
+    ap.add_argument("--describe", action="store_true", help="host only: what the costliest rays are (describe)")
     ap.add_argument("--configs", default="default",
                     help="--lone: ';'-separated -D sets for the fetch's walk, e.g. 'default;RT_FETCH_POP_IN_LOOP=0'")
     a = ap.parse_args(argv)
-    backend = get_backend(a.backend, a.device)
+    backend = None if a.describe else get_backend(a.backend, a.device)
     percents = [float(p) for p in a.percents.split(",")]
-    print(f"device: {backend.name}: {backend.device_name}; {a.rounds} rounds x best of {a.repeats}; ms")
+    if backend is not None:
+        print(f"device: {backend.name}: {backend.device_name}; {a.rounds} rounds x best of {a.repeats}; ms")
     for view in a.views.split(","):
         batch = make_rays(view, "diffuse", a.size)
         o = np.asarray(batch.origins, np.float64)
@@ -124,6 +159,10 @@ def main(argv=None) -> None:
         b4, _ = load_or_build_bvh4(batch.scene.vertices, batch.scene.faces)
         nodes, _, tris = traversal_counts_bvh4(b4, batch.scene.vertices, batch.scene.faces, o, d)[:3]
         cost = NODE_INSTR * np.asarray(nodes, np.float64) + TRI_INSTR * np.asarray(tris, np.float64)
+        if a.describe:
+            print(f"\n{view}: {len(cost):,} diffuse rays at {a.size}²")
+            describe(batch, nodes, tris, cost)
+            continue
         if a.lone:
             top = int(np.argmax(cost))
             print(f"\n{view}: costliest rays' cost {np.sort(cost)[::-1][:4].astype(int).tolist()}...; "
