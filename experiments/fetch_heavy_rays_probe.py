@@ -39,7 +39,7 @@ WARP = 32
 
 def lone_sets(cost: np.ndarray, origins, directions, seed: int = 7) -> dict[str, tuple]:
     """--lone: how long the costliest rays take by themselves on an idle GPU, as (origins, directions,
-    fetch, index of the rays that are the batch's, or None for all): the costliest ray alone; the
+    whether trace_rays_fetch takes them): the costliest ray alone; the
     costliest 32 as one warp; the same 32 one a warp, each with 31 rays that miss the scene (trace_rays,
     one ray a thread, so no lane takes another's ray); 32 random rays as one warp; one ray that
     misses (the launch's floor)."""
@@ -53,13 +53,13 @@ def lone_sets(cost: np.ndarray, origins, directions, seed: int = 7) -> dict[str,
     spread_o[::WARP] = origins[top]
     spread_d[::WARP] = directions[top]
     pick = lambda idx: (origins[idx], directions[idx])  # noqa: E731
-    return {"costliest ray alone": (*pick(ranked[:1]), True, ranked[:1]),
-            "costliest ray alone (trace_rays)": (*pick(ranked[:1]), False, ranked[:1]),
-            "costliest 32, one warp": (*pick(top), True, top),
-            "costliest 32, one warp (trace_rays)": (*pick(top), False, top),
-            "costliest 32, one a warp (trace_rays)": (spread_o, spread_d, False, None),
-            "32 random rays, one warp (trace_rays)": (*pick(rand), False, rand),
-            "one ray that misses": (miss_o, miss_d, True, None)}
+    return {"costliest ray alone": (*pick(ranked[:1]), True),
+            "costliest ray alone (trace_rays)": (*pick(ranked[:1]), False),
+            "costliest 32, one warp": (*pick(top), True),
+            "costliest 32, one warp (trace_rays)": (*pick(top), False),
+            "costliest 32, one a warp (trace_rays)": (spread_o, spread_d, False),
+            "32 random rays, one warp (trace_rays)": (*pick(rand), False),
+            "one ray that misses": (miss_o, miss_d, True)}
 
 
 def parse_defines(config: str) -> dict:
@@ -73,7 +73,7 @@ def time_lone(batch, cost, backend, rounds: int, repeats: int, configs: list[str
     sets = lone_sets(cost, batch.origins, batch.directions)
     best = {(k, c): [] for k in sets for c in configs}
     for _ in range(rounds):
-        for k, (o, d, fetch, _) in sets.items():
+        for k, (o, d, fetch) in sets.items():
             for c in configs if fetch else configs[:1]:
                 with mock.patch.object(tracing, "fetches_rays", tracing.fetches_rays if fetch else (lambda *_: False)):
                     r = trace(batch.scene, o, d, backend, repeats=repeats, warmup=1, defines=parse_defines(c))
@@ -117,21 +117,21 @@ def describe(batch, nodes, tris, cost) -> None:
     print("| rays | node visits (trace()'s 4-wide tree) | triangle tests | node visits (8 float children a node, "
           "bvh_width_chain.py's tree) | cosine to the surface, median | cosine < 0.1 | hit the scene |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    for label, idx in ((f"the costliest {k}", ranked[:k]) for k in (32, 306, 3000)):
+
+    def walks(idx):
+        """mean node visits at 8 children and the share that hits, of rays idx"""
         o = np.asarray(batch.origins, np.float64)[idx]
         d = np.asarray(batch.directions, np.float64)[idx]
         v8 = traversal_counts_wide(eight, batch.scene.vertices, batch.scene.faces, o, d)[0]
-        hit = reference_trace(batch.scene.vertices, batch.scene.faces, o, d).tri >= 0
-        print(f"| {label} | {nodes[idx].mean():.1f} | {tris[idx].mean():.1f} | {np.mean(v8):.1f} | "
-              f"{np.median(cosine[idx]):.2f} | {np.mean(cosine[idx] < 0.1):.0%} | {np.mean(hit):.0%} |")
+        return np.mean(v8), np.mean(reference_trace(batch.scene.vertices, batch.scene.faces, o, d).tri >= 0)
+
     sample = np.arange(0, n, max(1, n // 20000))
-    o = np.asarray(batch.origins, np.float64)[sample]
-    d = np.asarray(batch.directions, np.float64)[sample]
-    v8 = traversal_counts_wide(eight, batch.scene.vertices, batch.scene.faces, o, d)[0]
-    hit = reference_trace(batch.scene.vertices, batch.scene.faces, o, d).tri >= 0
-    print(f"| the batch ({n:,}; 8 children and hits on {len(sample):,} of them) | {nodes.mean():.1f} | "
-          f"{tris.mean():.1f} | {np.mean(v8):.1f} | {np.median(cosine):.2f} | {np.mean(cosine < 0.1):.0%} | "
-          f"{np.mean(hit):.0%} |")
+    rows = [(f"the costliest {k}", ranked[:k], ranked[:k]) for k in (32, 306, 3000)]
+    rows.append((f"the batch ({n:,}; 8 children and hits on {len(sample):,} of them)", np.arange(n), sample))
+    for label, idx, walked in rows:
+        v8, hit = walks(walked)
+        print(f"| {label} | {nodes[idx].mean():.1f} | {tris[idx].mean():.1f} | {v8:.1f} | "
+              f"{np.median(cosine[idx]):.2f} | {np.mean(cosine[idx] < 0.1):.0%} | {hit:.0%} |")
 
 
 def main(argv=None) -> None:
