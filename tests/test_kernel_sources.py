@@ -54,6 +54,19 @@ def test_cuda_ray_fetch_takes_its_own_register_cap():
     assert max(r.registers for r in report.values()) > 64, "the other kernels keep the program's cap of 72"
 
 
+@pytest.mark.skipif(not nvcc_available(), reason="nvcc not on PATH")
+def test_cuda_camera_ray_kernels_take_their_octant_walks_without_spilling():
+    """The library's 4-wide walk inlined once per ray octant (rt_bvh4.h, RT_BVH4_OCTANT_WALKS) in every
+    kernel that walks it: nine walks a kernel, still within the program's cap of 72 and nothing spilled."""
+    features = SceneFeatures(stack_size=32, n_lights=0, n_materials=1)
+    for defines in ({}, {"RT_BVH4_OCTANT_WALKS": 0}):
+        report = nvcc_resources(kernel_source("library_trace", "cuda"),
+                                {**build_defines(GPU_RAYS_VARIANT, features), **defines},
+                                extra_options=build_options(GPU_RAYS_VARIANT, "cuda", "library_trace"))
+        for name in ("trace_ray_grid_ordered", "trace_ray_grid", "trace_rays", "render_primary"):
+            assert report[name].registers <= 72 and report[name].spill_bytes == 0, (defines, name, report[name])
+
+
 @pytest.mark.parametrize("step", kernel_programs())
 def test_opencl_step_builds(backend, step):
     if backend.language != "opencl":

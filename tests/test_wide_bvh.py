@@ -271,6 +271,26 @@ def test_wide_bvh_matches_the_reference_and_the_binary_bvh(backend, traversal, n
         assert np.array_equal(got.t, binary.t)
 
 
+OCTANT_WALKS = {"RT_BVH4_OCTANT_WALKS": 2}      # rt_bvh4.h: the walk inlined per octant, for every ray
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("isect", ["watertight", "moller"])
+def test_bvh4_octant_walks_give_the_plain_walks_hits(backend, name, isect):
+    """The 4-wide walk inlined once per ray octant (RT_BVH4_OCTANT_WALKS: the library's camera rays,
+    where a warp shares the octant) gives the plain walk's t, ids and barycentrics bit for bit, in
+    every octant. Forced on every ray: PoCL has no warps to ask, and a GPU warp may take either walk."""
+    scene, o, d, _ = _case(name)
+    octants = np.unique(4 * (d[:, 0] < 0) + 2 * (d[:, 1] < 0) + (d[:, 2] < 0))
+    assert len(octants) == 8, "the rays should cover every octant"
+    variant = Variant("bvh4", isect)
+    plain = trace(scene, o, d, backend=backend, variant=variant, defines={"RT_BVH4_OCTANT_WALKS": 0})
+    walks = trace(scene, o, d, backend=backend, variant=variant, defines=OCTANT_WALKS)
+    for field in ("t", "tri", "u", "v"):
+        a, b = getattr(plain, field), getattr(walks, field)
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), f"{field}: {np.sum(a != b)} rays differ"
+
+
 @pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
 def test_wide_bvh_shadows_and_bounces_match_the_binary_bvh(backend, traversal):
     """Any-hit (shadow rays) and closest hit of secondary rays through the Whitted path (shadows, two
@@ -283,6 +303,10 @@ def test_wide_bvh_shadows_and_bounces_match_the_binary_bvh(backend, traversal):
         b = render_whitted(scene, backend, Variant(traversal, "watertight"), shadows=shadows, bounces=2,
                            schedule=schedule)
         assert np.array_equal(a.image, b.image), schedule
+        if traversal == "bvh4":          # any hit and secondary rays through the per-octant walks
+            c = render_whitted(scene, backend, Variant(traversal, "watertight"), shadows=shadows, bounces=2,
+                               schedule=schedule, defines=OCTANT_WALKS)
+            assert np.array_equal(a.image, c.image), f"{schedule}, per-octant walks"
 
 
 @pytest.mark.parametrize("traversal", ["bvh8", "bvh4"])
@@ -357,3 +381,9 @@ def test_gpu_wide_bvhs_match_bvh_on_the_benchmark_views():
                     assert e["mismatches"] == 0, f"{view} {kind} {be.name} {traversal}: {e}"
                     differ = int(np.sum(got.tri != binary.tri))
                     assert differ == 0, f"{view} {kind} {be.name} {traversal}: {differ} ids differ from bvh"
+                if kind == "primary":   # per-octant walks where a warp shares the octant (got), in every warp, in none
+                    for defines in (OCTANT_WALKS, {"RT_BVH4_OCTANT_WALKS": 0}):
+                        other = trace(batch.scene, batch.origins, batch.directions, be, Variant("bvh4", "watertight"),
+                                      defines=defines)
+                        assert all(np.array_equal(getattr(got, f), getattr(other, f)) for f in ("t", "tri", "u", "v")), \
+                            f"{view} {be.name} {defines}"

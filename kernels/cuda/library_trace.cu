@@ -8,6 +8,9 @@ __constant__ RtFrame c_frame;
 __constant__ RtLight c_lights[RT_MAX_LIGHTS];
 __constant__ RtMaterial c_materials[RT_MAX_MATERIALS];
 
+#ifndef RT_BVH4_OCTANT_WALKS
+#define RT_BVH4_OCTANT_WALKS 1         // the 4-wide walk inlined per octant, taken where a warp shares one (rt_bvh4.h)
+#endif
 #define RT_FETCH_KERNEL 1              // trace_rays_fetch: rays taken as lanes free up (rt_bvh.h)
 #include "rt_entry_trace.h"      // trace_rays, render_primary, trace_rays_fetch
 #define RT_ORDERED_GRID_KERNEL 1       // trace_ray_grid_ordered: the costliest tiles first (tile_orders.py)

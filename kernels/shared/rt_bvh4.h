@@ -227,14 +227,10 @@ RT_FN int bvh4_leaf(RT_SCENE_PARAMS, int leaf, const Ray *ray, Hit *hit, int any
     return 0;
 }
 
-/* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
-RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
-                         int any_hit)
+/* traverse_bvh4's walk from the root, once the ray is clipped to the scene box and its constants made */
+RT_FN void bvh4_walk(RT_SCENE_PARAMS, const Ray *ray, const Bvh4Ray *rp, Hit *hit, int any_hit)
 {
-    float t_enter, t_exit;
-    if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
-        return;
-    Bvh4Ray r = bvh4_ray(ray, t_exit);
+    Bvh4Ray r = *rp;
     Bvh4Entry stack[RT_STACK_SIZE + 3], top;
     int sp = 0;
     int ref = 0;
@@ -255,6 +251,48 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
         if (ref == BVH4_NONE)
             return;
     }
+}
+
+/* A warp whose rays share their octant (camera rays in tiles) walks with its near planes' rows as
+ * constants: bvh4_walk is inlined once per octant, so a visit's seven loads take their offsets from one
+ * address (the node loop 108 -> 95 SASS instructions on sm_90). The same walk node for node, so the same
+ * hits; a warp whose rays differ walks as before. RT_BVH4_OCTANT_WALKS 1: where the warp shares the
+ * octant (library_trace.cu/.cl define it); 2: always (tests: PoCL has no warps to ask); undefined or 0:
+ * never (the lab steps, the frames' programs). */
+
+/* bvh4_walk for rays of octant o, a constant where it is called */
+RT_FN void bvh4_walk_octant(RT_SCENE_PARAMS, const Ray *ray, Bvh4Ray r, Hit *hit, int any_hit, int o)
+{
+    r.near_x = o >> 2;
+    r.near_y = 2 + ((o >> 1) & 1);
+    r.near_z = 4 + (o & 1);
+    bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit);
+}
+
+/* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
+RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
+                         int any_hit)
+{
+    float t_enter, t_exit;
+    if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
+        return;
+    Bvh4Ray r = bvh4_ray(ray, t_exit);
+#if defined(RT_BVH4_OCTANT_WALKS) && RT_BVH4_OCTANT_WALKS
+    int octant = 4 * r.near_x + 2 * (r.near_y - 2) + (r.near_z - 4);
+    if (RT_BVH4_OCTANT_WALKS == 2 || rt_warp_uniform(octant)) {
+        switch (octant) {
+        case 0: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 0); return;
+        case 1: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 1); return;
+        case 2: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 2); return;
+        case 3: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 3); return;
+        case 4: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 4); return;
+        case 5: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 5); return;
+        case 6: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 6); return;
+        default: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 7); return;
+        }
+    }
+#endif
+    bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit);
 }
 
 /* traverse_bvh4's closest hit with its state kept across returns, for rays fetched as lanes free up

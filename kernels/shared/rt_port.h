@@ -270,6 +270,27 @@ RT_FN int rt_warp_active(void)
 #define rt_warp_active() 1
 #endif
 
+/* Whether every active lane of the warp holds the same value v (a speed hint only: code that takes a
+ * path per value where it is 1 must give the same results where it is 0). CUDA: match.any. NVIDIA's
+ * OpenCL: the same PTX, inline. Elsewhere 0. */
+#if defined(__CUDACC__)
+RT_FN int rt_warp_uniform(int v)
+{
+    unsigned int m = __activemask();
+    return __match_any_sync(m, v) == m;
+}
+#elif defined(RT_NV_PTX) && RT_NV_PTX
+RT_FN int rt_warp_uniform(int v)
+{
+    int same;
+    asm volatile("{\n\t.reg .b32 m, r;\n\t.reg .pred p;\n\tactivemask.b32 m;\n\tmatch.any.sync.b32 r, %1, m;\n\t"
+                 "setp.eq.b32 p, r, m;\n\tselp.s32 %0, 1, 0, p;\n\t}" : "=r"(same) : "r"(v));
+    return same;
+}
+#else
+#define rt_warp_uniform(v) 0
+#endif
+
 /* ---- Double precision (the watertight test's fallback, rt_intersect.h): always in CUDA, in OpenCL
  * where the device has cl_khr_fp64; -DRT_HAS_FP64=0 forces the float-only path. */
 #ifndef RT_HAS_FP64
