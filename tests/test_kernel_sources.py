@@ -85,6 +85,49 @@ RT_KERNEL void struct_sizes(RT_GLOBAL int *out)
 """
 
 
+WARP_UNIFORM_KERNEL = """
+#include "rt_types.h"
+/* 128 threads: warp 0 all the same value, warp 1 one lane different, warp 2 alike on its even lanes
+   only (the odd ones leave first), warp 3 alike on its odd lanes and different on its even ones */
+RT_KERNEL void warp_uniform(RT_GLOBAL int *out)
+{
+    int i = rt_global_id(0), w = i / 32, lane = i % 32;
+    int v = w == 1 ? (lane == 5) : w == 3 ? (lane % 2 ? 7 : lane) : 3;
+    if (w >= 2 && (lane % 2) != (w == 3))
+        return;
+    out[i] = rt_warp_uniform(v);
+}
+"""
+
+
+def test_warp_uniform_asks_the_lanes_still_active(backend, tmp_path):
+    """rt_warp_uniform (rt_port.h), the 4-wide walk's question before it walks per octant: 1 where
+    every active lane of the warp holds the value, 0 where one differs, lanes that left not counted;
+    0 everywhere on a device without warps (PoCL), where the walk takes its one form."""
+    _check_warp_uniform(backend, tmp_path)
+
+
+@pytest.mark.gpu
+def test_gpu_warp_uniform_on_cuda_and_nvidia_opencl(tmp_path):
+    from rtlab.backends import get_backend
+    for be in (get_backend("cuda"), get_backend("opencl", "NVIDIA")):
+        _check_warp_uniform(be, tmp_path)
+
+
+def _check_warp_uniform(backend, tmp_path):
+    src = tmp_path / ("uniform" + backend.extension)
+    src.write_text(WARP_UNIFORM_KERNEL)
+    out = backend.to_device(np.full(128, -1, np.int32))
+    backend.compile(src, {}).launch("warp_uniform", (128,), (128,), [out])
+    got = backend.to_host(out, np.int32, 128).reshape(4, 32)
+    if not backend.has_warp_votes():
+        assert np.all((got == 0) | (got == -1)), got
+        return
+    assert np.all(got[0] == 1) and np.all(got[1] == 0), got[:2]
+    assert np.all(got[2, ::2] == 1) and np.all(got[2, 1::2] == -1), got[2]
+    assert np.all(got[3, 1::2] == 1) and np.all(got[3, ::2] == -1), got[3]
+
+
 def test_struct_sizes_match_numpy_mirrors(backend, tmp_path):
     src = tmp_path / ("sizes" + backend.extension)
     src.write_text(SIZEOF_KERNEL)

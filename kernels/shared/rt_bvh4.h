@@ -254,20 +254,12 @@ RT_FN void bvh4_walk(RT_SCENE_PARAMS, const Ray *ray, const Bvh4Ray *rp, Hit *hi
 }
 
 /* A warp whose rays share their octant (camera rays in tiles) walks with its near planes' rows as
- * constants: bvh4_walk is inlined once per octant, so a visit's seven loads take their offsets from one
- * address (the node loop 108 -> 95 SASS instructions on sm_90). The same walk node for node, so the same
- * hits; a warp whose rays differ walks as before. RT_BVH4_OCTANT_WALKS 1: where the warp shares the
- * octant (library_trace.cu/.cl define it); 2: always (tests: PoCL has no warps to ask); undefined or 0:
- * never (the lab steps, the frames' programs). */
-
-/* bvh4_walk for rays of octant o, a constant where it is called */
-RT_FN void bvh4_walk_octant(RT_SCENE_PARAMS, const Ray *ray, Bvh4Ray r, Hit *hit, int any_hit, int o)
-{
-    r.near_x = o >> 2;
-    r.near_y = 2 + ((o >> 1) & 1);
-    r.near_z = 4 + (o & 1);
-    bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit);
-}
+ * constants: traverse_bvh4's switch inlines bvh4_walk once per octant, so a visit's seven loads take
+ * their offsets from one address (the node loop 108 -> 95 SASS instructions on sm_90). The rows are set
+ * in each case itself: through a helper taking the octant, NVIDIA's OpenCL kept only part of the gain.
+ * The same walk node for node, so the same hits; a warp whose rays differ walks as before.
+ * RT_BVH4_OCTANT_WALKS 1: where the warp shares the octant (library_trace.cu/.cl define it); 2: always
+ * (tests: PoCL has no warps to ask); undefined or 0: never (the lab steps, the frames' programs). */
 
 /* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
 RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
@@ -281,14 +273,15 @@ RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     int octant = 4 * r.near_x + 2 * (r.near_y - 2) + (r.near_z - 4);
     if (RT_BVH4_OCTANT_WALKS == 2 || rt_warp_uniform(octant)) {
         switch (octant) {
-        case 0: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 0); return;
-        case 1: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 1); return;
-        case 2: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 2); return;
-        case 3: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 3); return;
-        case 4: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 4); return;
-        case 5: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 5); return;
-        case 6: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 6); return;
-        default: bvh4_walk_octant(RT_SCENE_ARGS, ray, r, hit, any_hit, 7); return;
+        case 0: r.near_x = 0; r.near_y = 2; r.near_z = 4; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 1: r.near_x = 0; r.near_y = 2; r.near_z = 5; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 2: r.near_x = 0; r.near_y = 3; r.near_z = 4; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 3: r.near_x = 0; r.near_y = 3; r.near_z = 5; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 4: r.near_x = 1; r.near_y = 2; r.near_z = 4; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 5: r.near_x = 1; r.near_y = 2; r.near_z = 5; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 6: r.near_x = 1; r.near_y = 3; r.near_z = 4; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        case 7: r.near_x = 1; r.near_y = 3; r.near_z = 5; bvh4_walk(RT_SCENE_ARGS, ray, &r, hit, any_hit); return;
+        default: break;
         }
     }
 #endif

@@ -271,20 +271,35 @@ RT_FN int rt_warp_active(void)
 #endif
 
 /* Whether every active lane of the warp holds the same value v (a speed hint only: code that takes a
- * path per value where it is 1 must give the same results where it is 0). CUDA: match.any. NVIDIA's
- * OpenCL: the same PTX, inline. Elsewhere 0. */
+ * path per value where it is 1 must give the same results where it is 0). match.any from sm_70, the
+ * highest active lane's value by shuffle before; NVIDIA's OpenCL the same as inline PTX (RT_NV_PTX: the
+ * host passes the compute capability, major x 10 + minor). Elsewhere 0. */
 #if defined(__CUDACC__)
 RT_FN int rt_warp_uniform(int v)
 {
     unsigned int m = __activemask();
+#if __CUDA_ARCH__ >= 700
     return __match_any_sync(m, v) == m;
+#else
+    return __all_sync(m, __shfl_sync(m, v, 31 - __clz(m)) == v);
+#endif
 }
-#elif defined(RT_NV_PTX) && RT_NV_PTX
+#elif defined(RT_NV_PTX) && RT_NV_PTX >= 70
 RT_FN int rt_warp_uniform(int v)
 {
     int same;
     asm volatile("{\n\t.reg .b32 m, r;\n\t.reg .pred p;\n\tactivemask.b32 m;\n\tmatch.any.sync.b32 r, %1, m;\n\t"
                  "setp.eq.b32 p, r, m;\n\tselp.s32 %0, 1, 0, p;\n\t}" : "=r"(same) : "r"(v));
+    return same;
+}
+#elif defined(RT_NV_PTX) && RT_NV_PTX
+RT_FN int rt_warp_uniform(int v)
+{
+    int same;
+    asm volatile("{\n\t.reg .b32 m, lane, first;\n\t.reg .pred p, q;\n\tactivemask.b32 m;\n\t"
+                 "bfind.u32 lane, m;\n\tshfl.sync.idx.b32 first, %1, lane, 31, m;\n\t"
+                 "setp.eq.s32 p, first, %1;\n\tvote.sync.all.pred q, p, m;\n\tselp.s32 %0, 1, 0, q;\n\t}"
+                 : "=r"(same) : "r"(v));
     return same;
 }
 #else

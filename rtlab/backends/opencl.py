@@ -187,6 +187,14 @@ class OpenCLBackend(Backend):
     def has_warp_votes(self) -> bool:
         return self.is_nvidia()
 
+    def nv_compute_capability(self) -> int:
+        """An NVIDIA GPU's compute capability as major x 10 + minor (90 for the H100); 1 where the
+        driver does not say (rt_port.h then takes the PTX every generation has)."""
+        try:
+            return 10 * int(self.device.compute_capability_major_nv) + int(self.device.compute_capability_minor_nv)
+        except Exception:
+            return 1
+
     def sm_limits(self):
         """Per-multiprocessor limits for occupancy on an NVIDIA GPU of compute capability 9.0
         (the H100); None elsewhere, where the CUDA occupancy rules do not apply."""
@@ -211,8 +219,8 @@ class OpenCLBackend(Backend):
         flags = [*(f"-I{d}" for d in include_dirs(path)), f"-I{Path(path).parent}"]
         flags += [f"-D{k}={v}" for k, v in sorted(defines.items())]
         flags += list(options)
-        if self.is_nvidia():
-            flags += ["-cl-nv-verbose", "-DRT_NV_PTX=1"]     # inline PTX where rt_port.h needs it
+        if self.is_nvidia():     # inline PTX where rt_port.h needs it, for the GPU's generation (major x 10 + minor)
+            flags += ["-cl-nv-verbose", f"-DRT_NV_PTX={self.nv_compute_capability()}"]
         extra = settings.get("RTLAB_CL_OPTIONS")
         if extra:
             flags += extra.split()
