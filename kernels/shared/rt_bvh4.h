@@ -253,15 +253,14 @@ RT_FN void bvh4_walk(RT_SCENE_PARAMS, const Ray *ray, const Bvh4Ray *rp, Hit *hi
     }
 }
 
-/* A warp whose rays share their octant (camera rays in tiles) walks with its near planes' rows as
- * constants: traverse_bvh4's switch inlines bvh4_walk once per octant, so a visit's seven loads take
- * their offsets from one address (the node loop 108 -> 95 SASS instructions on sm_90). The rows are set
- * in each case itself: through a helper taking the octant, NVIDIA's OpenCL kept only part of the gain.
+/* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found.
+ * A warp whose rays share their octant (camera rays in tiles) walks with its near planes' rows as
+ * constants: the switch below inlines bvh4_walk once per octant, so a visit's seven loads take their
+ * offsets from one address (the node loop 108 -> 95 SASS instructions on sm_90). The rows are set in
+ * each case itself: through a helper taking the octant, NVIDIA's OpenCL kept only part of the gain.
  * The same walk node for node, so the same hits; a warp whose rays differ walks as before.
  * RT_BVH4_OCTANT_WALKS 1: where the warp shares the octant (library_trace.cu/.cl define it); 2: always
  * (tests: PoCL has no warps to ask); undefined or 0: never (the lab steps, the frames' programs). */
-
-/* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found. */
 RT_FN void traverse_bvh4(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,
                          int any_hit)
 {
