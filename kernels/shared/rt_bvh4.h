@@ -256,8 +256,9 @@ RT_FN void bvh4_walk(RT_SCENE_PARAMS, const Ray *ray, const Bvh4Ray *rp, Hit *hi
 /* 4-wide BVH traversal. Closest hit, or with any_hit the first hit found.
  * A warp whose rays share their octant (camera rays in tiles) walks with its near planes' rows as
  * constants: the switch below inlines bvh4_walk once per octant, so a visit's seven loads take their
- * offsets from one address (the node loop 108 -> 95 SASS instructions on sm_90). The rows are set in
- * each case itself: through a helper taking the octant, NVIDIA's OpenCL kept only part of the gain.
+ * offsets from one address instead of a sum each. The rows are set in each case itself: through a
+ * helper taking the octant, NVIDIA's OpenCL kept only part of the gain (docs/results.md, "Camera rays:
+ * the 4-wide walk inlined per ray octant").
  * The same walk node for node, so the same hits; a warp whose rays differ walks as before.
  * RT_BVH4_OCTANT_WALKS 1: where the warp shares the octant (library_trace.cu/.cl define it); 2: always
  * (tests: PoCL has no warps to ask); undefined or 0: never (the lab steps, the frames' programs). */

@@ -198,11 +198,7 @@ class OpenCLBackend(Backend):
     def sm_limits(self):
         """Per-multiprocessor limits for occupancy on an NVIDIA GPU of compute capability 9.0
         (the H100); None elsewhere, where the CUDA occupancy rules do not apply."""
-        try:
-            cc = (self.device.compute_capability_major_nv, self.device.compute_capability_minor_nv)
-        except Exception:
-            return None
-        if cc != (9, 0):
+        if self.nv_compute_capability() != 90:
             return None
         from .occupancy import SM90
         return SM90
