@@ -13,6 +13,7 @@ Ray kinds (the README's definitions):
 """
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,9 @@ CHECK_RAYS = 65_536          # rays of a batch checked against the float64 refer
 PEERS = ("warp", "optix", "tinybvh")
 
 
+@functools.lru_cache(maxsize=1)
 def _peer_data() -> dict:
+    """peer_figures.json, read once a process (every bench row looks its peers up)"""
     return json.loads(PEER_FIGURES_FILE.read_text())
 
 
