@@ -10,7 +10,8 @@ registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared me
 driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
-direction's quantised spherical angles; ``tileWxH``, camera rays tile by tile, so trace() takes them
+direction's quantised spherical angles; ``originB``, by the origin's Morton code alone on 2^B cells an
+axis (B = 10 where not given); ``tileWxH``, camera rays tile by tile, so trace() takes them
 as a list (trace_rays_fetch) in tiles; ``heavyP``, 8x4 tiles with the costliest P % first (heavy_first):
 what ordering could gain, the sort itself not timed; ``probeP``, the same ranked by one probe ray a tile;
 ``odP``, ranked by the library's estimate from the camera and the BVH, overdraw_first; ``wheavyP``
@@ -55,7 +56,7 @@ def parse_config(text: str, base):
             defines["nofetch"] = 1
         elif p == "noorder":
             defines["noorder"] = 1
-        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sorttile", "sortheavy", "sortprobe", "sortod", "sortwheavy", "sortwproxy")):
+        elif p in ("sortoct", "sortmorton", "sortdir") or p.startswith(("sortorigin", "sorttile", "sortheavy", "sortprobe", "sortod", "sortwheavy", "sortwproxy")):
             defines["sort"] = p[4:]
         elif p.startswith("tree="):
             defines["tree"] = p[5:]
@@ -160,6 +161,8 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
         return overdraw_first(float(kind[2:]), origins)
     if kind.startswith("wheavy") or kind.startswith("wproxy"):
         return warps_first(kind[:6], float(kind[6:]), origins, directions)
+    if kind.startswith("origin"):
+        return origin_order(origins, int(kind[6:] or 10))
     d = np.asarray(directions, np.float64)
     octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
     if kind == "oct":
@@ -173,6 +176,16 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
     phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
     key = (theta * 1023).astype(np.uint64) << 10 | (phi * 1023).astype(np.uint64)
     return np.argsort(octant << 20 | key, kind="stable")
+
+
+def origin_order(origins: np.ndarray, bits: int) -> np.ndarray:
+    """Stable by the Morton code of the origin alone, on a grid of 2^bits cells an axis over the origins'
+    box (directions left as they are): rays from one patch of surface together, the given order kept
+    inside a cell."""
+    o = np.asarray(origins, np.float64)
+    lo, hi = o.min(0), o.max(0)
+    q = ((o - lo) / np.maximum(hi - lo, 1e-30) * ((1 << bits) - 1)).astype(np.int64)
+    return np.argsort(morton3(q), kind="stable")
 
 
 def warps_first(rank: str, percent: float, origins, directions) -> np.ndarray:
