@@ -7,7 +7,7 @@
 A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
-driver's choice), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+driver's choice), ``tex`` (the tree and triangles read through textures: node_memory "texture"), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
 direction's quantised spherical angles; ``originB``, by the origin's Morton code alone on 2^B cells an
@@ -52,6 +52,8 @@ def parse_config(text: str, base):
         elif p.startswith("b") and "x" in p:
             w, h = p[1:].split("x")
             variant = variant.with_(block=(int(w), int(h)))
+        elif p == "tex":
+            variant = variant.with_(node_memory="texture")
         elif p == "nofetch":
             defines["nofetch"] = 1
         elif p == "noorder":
