@@ -7,7 +7,8 @@
 A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
-driver's choice), ``tex`` (the tree and triangles read through textures: node_memory "texture"), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+driver's choice), ``tex`` (the tree and triangles read through textures: node_memory "texture"),
+``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
 direction's quantised spherical angles; ``originB``, by the origin's Morton code alone on 2^B cells an
@@ -170,24 +171,27 @@ def ray_order(kind: str, origins: np.ndarray, directions: np.ndarray) -> np.ndar
     if kind == "oct":
         return np.argsort(octant, kind="stable")
     if kind == "morton":
-        o = np.asarray(origins, np.float64)
-        lo, hi = o.min(0), o.max(0)
-        q = ((o - lo) / np.maximum(hi - lo, 1e-30) * 1023).astype(np.int64)
-        return np.argsort(octant << 30 | morton3(q), kind="stable")
+        return np.argsort(octant << 30 | origin_morton(origins, 10), kind="stable")
     theta = np.arccos(np.clip(d[:, 2], -1, 1)) / np.pi
     phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
     key = (theta * 1023).astype(np.uint64) << 10 | (phi * 1023).astype(np.uint64)
     return np.argsort(octant << 20 | key, kind="stable")
 
 
-def origin_order(origins: np.ndarray, bits: int) -> np.ndarray:
-    """Stable by the Morton code of the origin alone, on a grid of 2^bits cells an axis over the origins'
-    box (directions left as they are): rays from one patch of surface together, the given order kept
-    inside a cell."""
+def origin_morton(origins: np.ndarray, bits: int) -> np.ndarray:
+    """Morton codes of the origins on a grid of 2^bits cells an axis over their box (bits <= 10)."""
+    if not 1 <= bits <= 10:
+        raise SystemExit(f"origin grid of 2^{bits} cells an axis: 1 to 10 bits")
     o = np.asarray(origins, np.float64)
     lo, hi = o.min(0), o.max(0)
     q = ((o - lo) / np.maximum(hi - lo, 1e-30) * ((1 << bits) - 1)).astype(np.int64)
-    return np.argsort(morton3(q), kind="stable")
+    return morton3(q)
+
+
+def origin_order(origins: np.ndarray, bits: int) -> np.ndarray:
+    """Stable by the Morton code of the origin alone (directions left as they are): rays from one patch
+    of surface together, the given order kept inside a cell."""
+    return np.argsort(origin_morton(origins, bits), kind="stable")
 
 
 def warps_first(rank: str, percent: float, origins, directions) -> np.ndarray:
