@@ -7,7 +7,8 @@
 A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the refined t a call, not
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
-driver's choice), ``tex`` (the tree and triangles read through textures: node_memory "texture"),
+driver's choice), ``l2keepN`` (CUDA: N MiB of L2 set aside for persisting lines while the
+configuration runs, l2_set_aside: what the launch loses with that much less L2 for normal lines), ``tex`` (the tree and triangles read through textures: node_memory "texture"),
 ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
@@ -65,6 +66,8 @@ def parse_config(text: str, base):
             defines["tree"] = p[5:]
         elif p.startswith("carve") and p[5:].lstrip("-").isdigit():
             defines["carveout"] = int(p[5:])
+        elif p.startswith("l2keep") and p[6:].isdigit():
+            defines["l2keep"] = int(p[6:])
         elif "=" in p:
             k, v = p.split("=")
             defines[k] = int(v)
@@ -261,6 +264,38 @@ def carveout(backend, percent: int):
     return mock.patch.object(CudaProgram, "prepared", with_carveout)
 
 
+@contextlib.contextmanager
+def l2_set_aside(backend, mib: int):
+    """CUDA only: ``mib`` MiB of L2 set aside for persisting lines (CU_LIMIT_PERSISTING_L2_CACHE_SIZE,
+    capped at the device's maximum) while the block runs: lines a kernel marks persisting (an L2
+    evict_last policy, experiments/prototypes/cache_hints.patch) stay there, and the other lines
+    have that much less L2. Reset to none, and every persisting line to normal, afterwards. 0:
+    nothing set."""
+    if backend.name != "cuda" or not mib:
+        yield
+        return
+    import ctypes
+    cuda = ctypes.CDLL("libcuda.so.1")
+    dev, most = ctypes.c_int(), ctypes.c_int()
+    cuda.cuCtxGetDevice(ctypes.byref(dev))
+    cuda.cuDeviceGetAttribute(ctypes.byref(most), 108, dev)           # MAX_PERSISTING_L2_CACHE_SIZE
+    size = min(mib << 20, most.value)
+    if cuda.cuCtxSetLimit(6, ctypes.c_size_t(size)) != 0:           # PERSISTING_L2_CACHE_SIZE
+        raise SystemExit("cuCtxSetLimit(PERSISTING_L2_CACHE_SIZE) failed")
+    if size not in L2_SET_ASIDE:
+        L2_SET_ASIDE.add(size)
+        print(f"L2 set aside for persisting lines: {size / 2**20:.1f} MiB (the device allows "
+              f"{most.value / 2**20:.1f})", flush=True)
+    try:
+        yield
+    finally:
+        cuda.cuCtxResetPersistingL2Cache()
+        cuda.cuCtxSetLimit(6, ctypes.c_size_t(0))
+
+
+L2_SET_ASIDE: set = set()    # sizes already reported
+
+
 def ab_arguments(description: str, configs: str, rounds: int) -> argparse.ArgumentParser:
     """The options every A/B tool here takes (each adds its own)."""
     ap = argparse.ArgumentParser(description=description)
@@ -304,7 +339,7 @@ def main(argv=None) -> None:
         perms = {c: ray_order(d["sort"], batch.origins, batch.directions) for c, _, d in configs if "sort" in d}
         for _ in range(a.rounds):
             for c, variant, defines in configs:
-                d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort", "noorder", "tree")}
+                d = {k: v for k, v in defines.items() if k not in ("nofetch", "carveout", "sort", "noorder", "tree", "l2keep")}
                 perm = perms.get(c)
                 o, dirs = (batch.origins, batch.directions) if perm is None else \
                     (np.ascontiguousarray(batch.origins[perm]), np.ascontiguousarray(batch.directions[perm]))
@@ -312,7 +347,8 @@ def main(argv=None) -> None:
                     o, dirs = np.asarray(o).view(np.ndarray), np.asarray(dirs).view(np.ndarray)
                 with mock.patch.object(tracing, "fetches_rays", (lambda *_: False) if "nofetch" in defines
                                        else tracing.fetches_rays), \
-                        carveout(backend, defines.get("carveout", -1)), kernel_tree(defines.get("tree")):
+                        carveout(backend, defines.get("carveout", -1)), kernel_tree(defines.get("tree")), \
+                        l2_set_aside(backend, defines.get("l2keep", 0)):
                     r = trace(batch.scene, o, dirs, backend, variant, repeats=a.repeats, warmup=1,
                               width=None if (a.rows or perm is not None) else width, defines=d)
                 best[c].append(min(r.launches_ms))
