@@ -8,8 +8,8 @@ A configuration is a traversal, then any of: ``call`` (RT_REFINE_CALL=1: the ref
 inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs), ``rNN`` (a cap of NN
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
 driver's choice), ``l2keepN`` (CUDA: N MiB of L2 set aside for persisting lines while the
-configuration runs, l2_set_aside: what the launch loses with that much less L2 for normal lines), ``tex`` (the tree and triangles read through textures: node_memory "texture"),
-``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+configuration runs, l2_set_aside: what the launch loses with that much less L2 for normal lines),
+``tex`` (the tree and triangles read through textures: node_memory "texture"), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
 direction's quantised spherical angles; ``originB``, by the origin's Morton code alone on 2^B cells an
@@ -268,29 +268,30 @@ def carveout(backend, percent: int):
 def l2_set_aside(backend, mib: int):
     """CUDA only: ``mib`` MiB of L2 set aside for persisting lines (CU_LIMIT_PERSISTING_L2_CACHE_SIZE,
     capped at the device's maximum) while the block runs: lines a kernel marks persisting (an L2
-    evict_last policy, experiments/prototypes/cache_hints.patch) stay there, and the other lines
-    have that much less L2. Reset to none, and every persisting line to normal, afterwards. 0:
-    nothing set."""
+    evict_last policy, experiments/prototypes/cache_hints.patch) stay there, and the other lines have
+    that much less L2. Afterwards every persisting line is made normal again and the set-aside is none.
+    pycuda's `limit` has no such member and it wraps no cuCtxResetPersistingL2Cache, so both go
+    through the driver library. 0: nothing set."""
     if backend.name != "cuda" or not mib:
         yield
         return
     import ctypes
+    drv = backend.drv
+    most = backend.cuda_device.get_attribute(drv.device_attribute.MAX_PERSISTING_L2_CACHE_SIZE)
+    size = min(mib << 20, most)
     cuda = ctypes.CDLL("libcuda.so.1")
-    dev, most = ctypes.c_int(), ctypes.c_int()
-    cuda.cuCtxGetDevice(ctypes.byref(dev))
-    cuda.cuDeviceGetAttribute(ctypes.byref(most), 108, dev)           # MAX_PERSISTING_L2_CACHE_SIZE
-    size = min(mib << 20, most.value)
-    if cuda.cuCtxSetLimit(6, ctypes.c_size_t(size)) != 0:           # PERSISTING_L2_CACHE_SIZE
-        raise SystemExit("cuCtxSetLimit(PERSISTING_L2_CACHE_SIZE) failed")
+    persisting_l2 = 6                                  # CU_LIMIT_PERSISTING_L2_CACHE_SIZE (cuda.h)
+    if cuda.cuCtxSetLimit(persisting_l2, ctypes.c_size_t(size)) != 0:
+        raise SystemExit(f"cuCtxSetLimit(CU_LIMIT_PERSISTING_L2_CACHE_SIZE, {size}) failed")
     if size not in L2_SET_ASIDE:
         L2_SET_ASIDE.add(size)
         print(f"L2 set aside for persisting lines: {size / 2**20:.1f} MiB (the device allows "
-              f"{most.value / 2**20:.1f})", flush=True)
+              f"{most / 2**20:.1f})", flush=True)
     try:
         yield
     finally:
-        cuda.cuCtxResetPersistingL2Cache()
-        cuda.cuCtxSetLimit(6, ctypes.c_size_t(0))
+        if cuda.cuCtxResetPersistingL2Cache() != 0 or cuda.cuCtxSetLimit(persisting_l2, ctypes.c_size_t(0)) != 0:
+            raise SystemExit("cuCtxResetPersistingL2Cache or the set-aside's reset failed: the L2 stays split")
 
 
 L2_SET_ASIDE: set = set()    # sizes already reported
