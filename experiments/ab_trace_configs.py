@@ -9,7 +9,8 @@ inlined), ``woop`` (RT_REFINE_T=0: Woop's t, to bound what the refinement costs)
 registers), ``bWxH`` (block), ``carveN`` (CUDA: N % of L1 preferred as shared memory, -1 the
 driver's choice), ``l2keepN`` (CUDA: N MiB of L2 set aside for persisting lines while the
 configuration runs, l2_set_aside: what the launch loses with that much less L2 for normal lines),
-``tex`` (the tree and triangles read through textures: node_memory "texture"), ``nofetch`` (trace_rays, not trace_rays_fetch, for rays in no image order),
+``tex`` (the tree and triangles read through textures: node_memory "texture"), ``nofetch`` (trace_rays,
+not trace_rays_fetch, for rays in no image order),
 ``sortK`` (the rays permuted on the host before trace(), hits mapped back; K: ``oct``, stable by
 direction octant; ``morton``, by octant then the origin's Morton code; ``dir``, by octant then the
 direction's quantised spherical angles; ``originB``, by the origin's Morton code alone on 2^B cells an

@@ -16,8 +16,8 @@ llvm_ad_rgb --peers warp,optix``.
         [--peers rtlab,warp,optix,warp-idle] [--rounds 3] [--repeats 22] [--warmup 3]
 
 Timing, as the README's "kernel time only, median of 22 launches after warm-up":
-- rtlab: trace() as ``rtlab bench rays`` calls it (the default on CUDA; events bracketing the kernel
-  behind a GPU spin).
+- rtlab: ``bench_rays``, as ``rtlab bench rays`` times trace() (the default on CUDA; events bracketing
+  the kernel behind a GPU spin).
 - warp: CUDA events around one ``wp.launch``, recorded behind an untimed launch of the same kernel, so
   that the start event fires once the GPU has the timed launch queued (Warp's launch overhead in
   Python stays outside the span, as rtlab's spin keeps pycuda's out).
@@ -47,8 +47,9 @@ try:        # Warp's kernel must be defined at import; the script runs without W
     import warp as wp
 
     @wp.kernel
-    def warp_closest_hit(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3), directions: wp.array(dtype=wp.vec3),
-                         max_t: float, t_out: wp.array(dtype=float), tri_out: wp.array(dtype=int)):
+    def warp_closest_hit(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3),
+                         directions: wp.array(dtype=wp.vec3), max_t: float, t_out: wp.array(dtype=float),
+                         tri_out: wp.array(dtype=int)):
         i = wp.tid()
         q = wp.mesh_query_ray(mesh, origins[i], directions[i], max_t)
         if q.result:
@@ -73,13 +74,10 @@ class RtlabTracer:
         self.batch = batch
 
     def time(self, repeats: int, warmup: int):
+        from rtlab.benches.rays import bench_rays
         from rtlab.device.kernels import Variant
-        from rtlab.device.tracing import resolve_variant, trace
-        b = self.batch
-        variant = resolve_variant(Variant(), self.backend, rays=True)
-        width = b.size if b.kind == "primary" else None
-        r = trace(b.scene, b.origins, b.directions, self.backend, variant, repeats=repeats, warmup=warmup, width=width)
-        return float(np.median(r.launches_ms)), r.tri, r.t
+        row = bench_rays(self.batch, self.backend, Variant(), repeats=repeats, warmup=warmup, render=False)
+        return row.median_ms, row.error
 
 
 class WarpTracer:
@@ -94,6 +92,8 @@ class WarpTracer:
         wp.init()
         self.device = device or "cuda:0"
         self.device_name = wp.get_device(self.device).name
+        self.events = ((wp.Event(self.device, enable_timing=True), wp.Event(self.device, enable_timing=True))
+                       if wp.get_device(self.device).is_cuda else None)
         self._mesh_key = None
 
     def prepare(self, batch):
@@ -107,6 +107,7 @@ class WarpTracer:
             self._mesh_key = key
         n = batch.n
         self.n = n
+        self.batch = batch
         self.o = wp.array(np.ascontiguousarray(batch.origins, np.float32), dtype=wp.vec3, device=self.device)
         self.d = wp.array(np.ascontiguousarray(batch.directions, np.float32), dtype=wp.vec3, device=self.device)
         self.t = wp.empty(n, dtype=float, device=self.device)
@@ -117,12 +118,12 @@ class WarpTracer:
                   outputs=[self.t, self.tri], device=self.device)
 
     def _timed_launch(self) -> float:
-        if not wp.get_device(self.device).is_cuda:       # a CPU try of the script: wall time
+        if self.events is None:                          # a CPU try of the script: wall time
             t0 = time.perf_counter()
             self._launch()
             wp.synchronize_device(self.device)
             return (time.perf_counter() - t0) * 1e3
-        start, end = wp.Event(self.device, enable_timing=True), wp.Event(self.device, enable_timing=True)
+        start, end = self.events
         if self.idle:
             wp.synchronize_device(self.device)
         else:
@@ -141,7 +142,7 @@ class WarpTracer:
         t = self.t.numpy().astype(np.float32)
         tri = self.tri.numpy().astype(np.int64)
         t[tri < 0] = np.inf
-        return float(np.median(spans)), tri, t
+        return float(np.median(spans)), self.batch.error(tri, t)
 
 
 class OptixTracer:
@@ -178,6 +179,7 @@ class OptixTracer:
         dr.eval(self.ray)
         dr.sync_thread()
         self.coherent = batch.kind == "primary"
+        self.batch = batch
 
     def time(self, repeats: int, warmup: int):
         dr = self.dr
@@ -195,7 +197,7 @@ class OptixTracer:
         t = np.asarray(pi.t, np.float32)
         tri = np.where(np.isfinite(t), np.asarray(pi.prim_index, np.int64), -1)
         t = np.where(tri >= 0, t, np.inf).astype(np.float32)
-        return float(np.median(spans)), tri, t
+        return float(np.median(spans)), self.batch.error(tri, t)
 
 
 def parse_rows(text: str | None):
@@ -253,10 +255,9 @@ def main(argv=None) -> None:
         errors = {}
         for _ in range(a.rounds):
             for t in tracers:
-                ms, tri, tt = t.time(a.repeats, a.warmup)
+                ms, error = t.time(a.repeats, a.warmup)
                 per_round[t.name].append(ms)
-                if t.name not in errors:
-                    errors[t.name] = batch.error(tri, tt)
+                errors.setdefault(t.name, error)
         mrays = {name: batch.n / (statistics.median(v) * 1e-3) / 1e6 for name, v in per_round.items()}
         readme = figures.get((view, kind, size), {})
         cells = [view, kind, f"{size}²", f"{batch.n:,}"] + [f"{mrays[t.name]:,.0f}" for t in tracers]
