@@ -104,7 +104,10 @@ def scene_search_dirs() -> list[Path]:
     if IN_CHECKOUT:
         dirs.append(PROJECT_DIR.parent / "shared" / "scenes")
     dirs.append(user_cache_dir() / "scenes")
-    return dirs
+    unique: dict[Path, Path] = {}          # RTLAB_SCENES often names the checkout's own folder again
+    for d in dirs:
+        unique.setdefault(d.resolve(), d)
+    return list(unique.values())
 
 
 def find_scene_file(relpath: str) -> Path | None:

@@ -269,6 +269,13 @@ def test_non_finite_vertex(tmp_path, private_cache, name, text):
     assert str(path) in message and "vertex 1" in message and ("NaN" in message)
 
 
+def test_ply_without_a_coordinate_names_it(tmp_path, private_cache):
+    """A PLY whose vertices lack a coordinate says which property is missing, not trimesh's KeyError."""
+    path = _write(tmp_path, "no_z.ply", _ply(TRIANGLE, [(0, 1, 2)]).replace("property float z\n", ""))
+    message = _load_error(path)
+    assert str(path) in message and "'z'" in message and "KeyError" not in message
+
+
 def test_face_index_out_of_range_ply(tmp_path, private_cache):
     path = _write(tmp_path, "oor.ply", _ply(TRIANGLE, [(0, 1, 2), (0, 1, 5)]))
     message = _load_error(path)
@@ -589,3 +596,17 @@ def test_vertex_components_join_triangles_by_shared_vertices():
     rng = np.random.default_rng(3)
     chain = np.stack([np.arange(2000), np.arange(1, 2001), np.arange(2, 2002)], 1)[rng.permutation(2000)]
     assert np.all(vertex_components(2002, chain) == 0)
+
+
+def test_scene_search_dirs_name_each_folder_once(tmp_path, monkeypatch):
+    """RTLAB_SCENES naming a folder twice, or again through a link, is searched (and reported) once,
+    in the order first given."""
+    first, second = tmp_path / "a", tmp_path / "b"
+    first.mkdir()
+    second.mkdir()
+    (tmp_path / "link").symlink_to(first)
+    monkeypatch.setenv("RTLAB_SCENES", os.pathsep.join(str(p) for p in (first, second, tmp_path / "link", first)))
+    dirs = scene_search_dirs()
+    assert dirs[:2] == [first, second]
+    resolved = [d.resolve() for d in dirs]
+    assert len(resolved) == len(set(resolved))

@@ -106,6 +106,9 @@ def _trimesh_scene(path: Path, obj_text: bytes | None, usemtl_names: list[str]):
         return trimesh.load_scene(**source, process=False, group_material=True)
     except Exception as exc:  # trimesh raises many kinds; the user needs the file and the reason
         detail = first_bad_obj_face(path) if isinstance(exc, IndexError) and obj_text is not None else None
+        if isinstance(exc, KeyError) and path.suffix.lower() == ".ply":    # trimesh's reader looks up the properties
+            detail = (f"its header lacks the property {exc.args[0]!r} (a vertex needs x, y and z; a face, "
+                      f"vertex_indices)")
         reason = detail or f"{type(exc).__name__}: {exc}"
         raise SceneError(f"cannot read {path}: {reason}") from None
 
