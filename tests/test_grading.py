@@ -444,9 +444,131 @@ def test_lab03_cheats_score_nothing(tmp_path):
     assert report.test("compile").status == "refused"
 
 
+def _calling_instead(text: str, function: str, step: str, rel: str, call: str, before: str = "") -> str:
+    """``text`` with ``function``'s solution replaced by ``call`` (and ``before`` put ahead of the function)."""
+    text = _without_region_body(text, function, step, rel)
+    pattern = rf"(/\* TODO \(lab {step}\): write {function} here.*?\*/\n)\s*return;"
+    out = re.sub(pattern, lambda m: m.group(1) + "    " + call, text, flags=re.S)
+    assert call in out
+    head = f"RT_FN void {function}("
+    return out.replace(head, before + head, 1)
+
+
+def test_lab03_traversals_that_call_other_lab_functions_score_nothing(tmp_path):
+    """Lab 03's traversals that call lab 00's finished traverse_kd_stack (67 / 100 before the lab-call
+    rule), directly, through a helper of their own with an attribute after its parameters, through a
+    macro of their own, or one lab 03 traversal calling another: every test that compiles one scores 0
+    and names the path of calls; bvh, written, passes."""
+    step = "03_traversal"
+    sub = reference_files(step, tmp_path / "sub")
+    args = "RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit"
+    forged = {
+        "rt_kd_restart.h": ("traverse_kd_restart", f"traverse_kd_stack({args});", ""),
+        "rt_kd_shortstack.h": ("traverse_kd_shortstack", f"walk_for_me({args});",
+                               "RT_FN void walk_for_me(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, "
+                               "const Ray *ray, Hit *hit, int any_hit) __attribute__((overloadable))\n"
+                               f"{{ traverse_kd_stack({args}); }}\n\n"),
+        "rt_kd_ropes.h": ("traverse_kd_ropes", f"MY_WALK({args});", "#define MY_WALK traverse_kd_stack\n"),
+        "rt_packet.h": ("traverse_kd_packet", "if (valid) traverse_kd_restart(RT_SCENE_ARGS, scene_min, scene_max, "
+                        "ray, hit, any_hit);", '#include "rt_kd_restart.h"\n'),
+    }
+    for name, (function, call, before) in forged.items():
+        path = sub / "kernels/shared" / name
+        path.write_text(_calling_instead(path.read_text(), function, step, f"kernels/shared/{name}", call, before))
+    report = grade(step, sub, tests=["trace_restart", "trace_shortstack", "trace_ropes", "trace_packet", "trace_bvh"])
+    why = {"trace_restart": "traverse_kd_restart calls traverse_kd_stack, the function lab 00_primary grades",
+           "trace_shortstack": "traverse_kd_shortstack calls traverse_kd_stack (through walk_for_me)",
+           "trace_ropes": "traverse_kd_ropes calls traverse_kd_stack, the function lab 00_primary grades",
+           "trace_packet": "traverse_kd_packet calls traverse_kd_restart, the function lab 03_traversal grades"}
+    for name, message in why.items():
+        t = report.test(name)
+        assert t.score == 0 and t.status == "refused" and message in t.output, (name, t.output)
+    assert report.test("trace_bvh").passed, report.test("trace_bvh").output
+
+
+def test_lab_call_rule_reads_the_compilers_call_graph(tmp_path):
+    """The rule's two halves on their own: the reference's allowance (what lab 03's traversals may call:
+    the triangle tests, never another traversal), and the call graph clang builds for a program, which
+    sees a call through a macro, a static helper and an attribute, names mangled or not."""
+    from rtlab.course.deps import opencl_ir
+    from rtlab.course.lab_calls import ir_call_graph, lab_call_problem, lab_call_rules, source_name
+    rules = lab_call_rules("03_traversal")
+    assert set(rules["allowed"]) == {"traverse_kd_restart", "traverse_kd_shortstack", "traverse_kd_ropes",
+                                     "traverse_kd_packet", "traverse_bvh"}
+    for allowed in rules["allowed"].values():
+        assert "intersect_ray_tri_watertight" in allowed and not any(f.startswith("traverse") for f in allowed)
+    assert source_name("_Z17traverse_kd_stackPU3AS1Dv4_f") == "traverse_kd_stack" and source_name("f.1") == "f"
+    src = tmp_path / "k.cl"
+    src.write_text("#define GO(x) lab_b(x)\n"
+                   "static float lab_b(float x) { return x * 2.0f; }\n"
+                   "static float hide(float x) __attribute__((overloadable)) { return GO(x); }\n"
+                   "static float lab_a(float x) { return hide(x) + 1.0f; }\n"
+                   "__kernel void k(__global float *o) { o[0] = lab_a(o[0]); }\n")
+    graph = ir_call_graph(opencl_ir(src, [tmp_path], {}))
+    assert graph["k"] >= {"lab_a"} and graph["lab_a"] >= {"hide"} and graph["hide"] >= {"lab_b"}
+    owners = {"lab_a": "01", "lab_b": "00"}
+    problem = lab_call_problem(graph, {"owners": owners, "allowed": {"lab_a": []}})
+    assert problem and problem.startswith("lab_a calls lab_b (through hide), the function lab 00 grades")
+    assert lab_call_problem(graph, {"owners": owners, "allowed": {"lab_a": ["lab_b"]}}) is None
+
+
+BRUTE_FORCE_BVH = """int stack[4096];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        int ref = stack[--sp];
+        if (ref >= 0) {
+            float4 c = NODE_ROW(BVH_NODE_STRIDE * ref + 3);
+            stack[sp++] = rt_as_int(c.x);
+            stack[sp++] = rt_as_int(c.y);
+        } else {
+            LEAF
+        }
+    }"""
+LOADER_LEAF = "intersect_bvh_leaf(RT_SCENE_ARGS, ref, ray, hit, any_hit);"
+RAW_LEAF = """int bits = ~ref, first = bits >> BVH_LEAF_BITS, count = bits & ((1 << BVH_LEAF_BITS) - 1);
+            for (int i = 0; i < count; ++i) {
+#if RT_BVH_LEAF_TRIS
+                RT_GLOBAL const float4 *r = (RT_GLOBAL const float4 *)tri_data + 3 * (first + i);
+                intersect_tri_vertices(ray, xyz(r[0]), xyz(r[1]), xyz(r[2]), rt_as_int(r[0].w), hit);
+#else
+                int tri = ((RT_GLOBAL const int *)objects)[first + i];
+                RT_GLOBAL const float4 *v = (RT_GLOBAL const float4 *)tris + 3 * tri;
+                intersect_tri_vertices(ray, xyz(v[0]), xyz(v[1]), xyz(v[2]), tri, hit);
+#endif
+            }"""
+
+
+@pytest.mark.parametrize("form, status, message", [
+    # the old grader passed all three (10 / 10): the budget read counters the kernel can reach
+    ("zeroed", "refused", "rt_work is the work budget's counter"),
+    ("probed", "ok", "on the rays it was checked on it reads"),
+    ("raw", "ok", "read triangle data 0 times through the lab's loaders"),
+])
+def test_lab03_brute_force_that_hides_from_the_work_budget_scores_nothing(tmp_path, form, status, message):
+    """A brute-force traverse_bvh (every node, every leaf) that hides its reads: by zeroing its own
+    counters, by walking only when the launch is larger than the probe's, or by reading the scene
+    through raw pointers past the counting loaders. Its hits are right; its trace test scores 0."""
+    step, rel = "03_traversal", "kernels/shared/rt_bvh.h"
+    sub = reference_files(step, tmp_path / "sub")
+    walk = BRUTE_FORCE_BVH.replace("LEAF", RAW_LEAF if form == "raw" else LOADER_LEAF)
+    row = "((RT_GLOBAL const float4 *)node_data)[{}]" if form == "raw" else "load_node_data(node_data, {})"
+    walk = re.sub(r"NODE_ROW\((.*?)\);", lambda m: row.format(m.group(1)) + ";", walk)
+    body = {"zeroed": walk + "\n#if RT_COUNT_WORK\n    rt_work[2 + 2 * rt_imin((int)rt_item_index(), "
+                             "(int)rt_work[0] - 1)] = 0u;\n#endif\n",
+            "probed": "if (get_global_size(0) * get_global_size(1) <= 1024)\n        return;\n    " + walk,
+            "raw": walk}[form]
+    path = sub / rel
+    path.write_text(_calling_instead(path.read_text(), "traverse_bvh", step, rel, body))
+    t = grade(step, sub, tests=["trace_bvh"]).test("trace_bvh")
+    assert t.score == 0 and message in t.output, t.output
+    if status == "ok":      # the hits themselves were right: only the budget failed it
+        assert "every ray" in t.output or "but on" in t.output, t.output
+
+
 def test_later_step_function_is_a_stub_in_lab00(tmp_path):
     """Lab 00 whose traverse_kd_stack calls lab 03's traverse_kd_restart (≈ 98 / 100 with the old
-    grader): lab 03's solution is not in lab 00's tree, so the traversal tests fail."""
+    grader): the lab-call rule refuses it (and lab 03's solution is not in lab 00's tree either)."""
     sub = reference_files(STEP, tmp_path / "sub")
     kd = sub / "kernels/shared/rt_kdtree.h"
     text = _without_region_body(kd.read_text(), "traverse_kd_stack", STEP, "kernels/shared/rt_kdtree.h")
@@ -456,10 +578,9 @@ def test_later_step_function_is_a_stub_in_lab00(tmp_path):
     assert "traverse_kd_restart(RT_SCENE_ARGS" in text
     kd.write_text(text)
     report = grade(STEP, sub, tests=["compile", "trace_random_rays", "render_default"])
-    assert report.test("compile").passed
-    for name in ("trace_random_rays", "render_default"):
+    for name in ("compile", "trace_random_rays", "render_default"):
         t = report.test(name)
-        assert t.score == 0 and "got a miss" in t.output, t.output
+        assert t.score == 0 and "traverse_kd_stack calls traverse_kd_restart" in t.output, t.output
 
 
 def test_compile_test_stands_for_every_kernel_the_tests_build(tmp_path):

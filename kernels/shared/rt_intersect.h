@@ -340,8 +340,8 @@ RT_FN void refine_hit_t(RT_SCENE_PARAMS, const Ray *ray, Hit *hit)
 #if !(RT_ISECT == RT_ISECT_WATERTIGHT && RT_REFINE_T)
     if (hit->tri < 0)
         return;
-    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_tri_vertex(tris, hit->tri, 1)), v0), sub3(xyz(load_tri_vertex(tris, hit->tri, 2)), v0));
+    float3 v0 = xyz(load_hit_vertex(tris, hit->tri, 0));
+    float3 n = cross3(sub3(xyz(load_hit_vertex(tris, hit->tri, 1)), v0), sub3(xyz(load_hit_vertex(tris, hit->tri, 2)), v0));
     float t = dot3(n, sub3(v0, ray->o)) / dot3(n, ray->d);
     if (t > ray->tmin && t < ray->tmax)
         hit->t = t;

@@ -136,6 +136,10 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
 #define load_tri_material(tri_materials, tri) (tri_materials)[(tri)]
 #endif
 
+/* A vertex of a triangle already hit (the refined t, the shading): read as any vertex, but not the
+ * walk's work, so the counting build below does not count it */
+#define load_hit_vertex(tris, tri, k) load_tri_vertex(tris, tri, k)
+
 /* Word i of node_data, four a float4 row (a child ref of rt_bvh4.h's refs row, read alone): one
  * 4-byte read from a buffer; from a texture, its row's component. */
 #if RT_NODE_MEM == RT_MEM_TEXTURE
@@ -154,8 +158,10 @@ RT_FN int fetch_int_image(read_only image1d_buffer_t img, int i)
  * the seven scene buffers with two counters a work-item (no atomics: each item its own): the
  * tree's reads (nodes, node data, object list) and the triangles' (vertices, per-triangle data).
  * A traversal that walks the whole tree reads many times what the reference reads on the same
- * rays (rtlab.course.checks). The buffers take opaque types here, so a read that bypasses the
- * loaders does not compile. Global placement only. */
+ * rays (rtlab.course.checks). The buffers take opaque types here, so a plain read past the loaders
+ * does not compile (a cast does: the grader also holds a launch to a triangle read a hit, and refuses
+ * these names in submitted files). The hit triangle's own vertices, read again after the walk
+ * (load_hit_vertex), are not counted. Global placement only. */
 #if RT_NODE_MEM != RT_MEM_GLOBAL
 #error "RT_COUNT_WORK needs the global placement (RT_NODE_MEM == RT_MEM_GLOBAL)"
 #endif
@@ -187,6 +193,8 @@ struct RtIntList;
 #define load_tri_data(tri_data, i) rt_counted(1, tri_data, float4, i)
 #define load_tri_vertex(tris, tri, k) rt_counted(1, tris, float4, 3 * (tri) + (k))
 #define load_tri_normal(normals, tri, k) (((RT_GLOBAL const float4 *)(normals))[3 * (tri) + (k)])
+#undef load_hit_vertex
+#define load_hit_vertex(tris, tri, k) (((RT_GLOBAL const float4 *)(tris))[3 * (tri) + (k)])
 #define load_tri_material(tri_materials, tri) (((RT_GLOBAL const int *)(tri_materials))[(tri)])
 /* RT_SCENE_PARAMS' names, to pass them on */
 #define RT_SCENE_ARGS nodes, node_data, objects, tris, tri_data, normals, tri_materials, rt_work

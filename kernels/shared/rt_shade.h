@@ -17,9 +17,9 @@ RT_FN float3 hit_normal(RT_SCENE_PARAMS, const Ray *ray, const Hit *hit)
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v);
 #else
-    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_tri_vertex(tris, hit->tri, 1)), v0),
-                      sub3(xyz(load_tri_vertex(tris, hit->tri, 2)), v0));
+    float3 v0 = xyz(load_hit_vertex(tris, hit->tri, 0));
+    float3 n = cross3(sub3(xyz(load_hit_vertex(tris, hit->tri, 1)), v0),
+                      sub3(xyz(load_hit_vertex(tris, hit->tri, 2)), v0));
 #endif
     n = normalize3(n);
     return dot3(n, ray->d) > 0.0f ? mul3(n, -1.0f) : n;
@@ -101,9 +101,9 @@ RT_FN float position_error(float3 v0, float3 v1, float3 v2)
 RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
 {
     Surface s;
-    float3 v0 = xyz(load_tri_vertex(tris, hit->tri, 0));
-    float3 v1 = xyz(load_tri_vertex(tris, hit->tri, 1));
-    float3 v2 = xyz(load_tri_vertex(tris, hit->tri, 2));
+    float3 v0 = xyz(load_hit_vertex(tris, hit->tri, 0));
+    float3 v1 = xyz(load_hit_vertex(tris, hit->tri, 1));
+    float3 v2 = xyz(load_hit_vertex(tris, hit->tri, 2));
     s.p = hit_position(v0, v1, v2, hit);
     s.p_err = position_error(v0, v1, v2);
     float3 ng = normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));

@@ -7,6 +7,9 @@ a macro, a line splice or any other spelling the rule's lexer reads otherwise ch
 here). Every file must lie in the kernel sources being compiled or the grader's harness folder
 (clang's own OpenCL header aside); anything else refuses the compile, naming the file. The clang
 that PoCL was built with (``clang-15`` for PoCL 3.1's LLVM 15) is preferred; any clang works.
+
+The same clang gives the lab-call rule (rtlab.course.lab_calls) the program's call graph:
+:func:`opencl_ir`, the program as LLVM IR before any optimisation.
 """
 from __future__ import annotations
 
@@ -53,26 +56,41 @@ def _make_deps(text: str) -> list[str]:
     return [p.replace("\\ ", " ").replace("$$", "$") for p in parts if p]
 
 
-def included_files(source: Path, include_dirs: list[Path], defines: dict, language: str) -> list[Path]:
-    """Every file the preprocessor opens for ``source`` (itself first); RuntimeError when it cannot say."""
+def _run_clang(source: Path, include_dirs: list[Path], defines: dict, language: str, flags: list[str]) -> str:
+    """clang on ``source`` as the compile sees it (its folders and defines), with ``flags``: its output,
+    or PreprocessorError (its diagnostics), MemoryError or RuntimeError."""
     clang = find_clang()
     if clang is None:
-        raise RuntimeError("no clang on PATH to list what the kernel includes (Debian's PoCL brings clang-NN)")
+        raise RuntimeError("no clang on PATH to read the kernel as the compiler does (Debian's PoCL brings clang-NN)")
     lang = ["-x", "cl", "-cl-std=CL1.2"] if language == "opencl" else \
         ["-x", "c++", "-D__CUDACC__", "-D__CUDA_ARCH__=900", "-nostdinc", "-nostdinc++"]
-    cmd = [clang, *lang, "-E", "-M", "-MG", "-MT", "x", *(f"-I{Path(d).resolve()}" for d in include_dirs),
+    cmd = [clang, *lang, *flags, *(f"-I{Path(d).resolve()}" for d in include_dirs),
            *(f"-D{k}={v}" for k, v in sorted(defines.items())), str(Path(source).resolve())]
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT_S, errors="replace")
     except subprocess.TimeoutExpired:
-        raise RuntimeError(f"the preprocessor did not finish listing the includes of {source.name} in {TIMEOUT_S} s")
+        raise RuntimeError(f"clang did not finish reading {source.name} in {TIMEOUT_S} s")
     except OSError as e:
         raise RuntimeError(f"cannot run {clang}: {e}")
     if out.returncode != 0:
         if any(sign in out.stderr for sign in MEMORY_SIGNS):
-            raise MemoryError(f"the preprocessor ran out of memory on {source.name}")
+            raise MemoryError(f"clang ran out of memory on {source.name}")
         raise PreprocessorError(out.stderr)
-    return [Path(p) for p in _make_deps(out.stdout)]
+    return out.stdout
+
+
+def included_files(source: Path, include_dirs: list[Path], defines: dict, language: str) -> list[Path]:
+    """Every file the preprocessor opens for ``source`` (itself first); RuntimeError when it cannot say."""
+    text = _run_clang(source, include_dirs, defines, language, ["-E", "-M", "-MG", "-MT", "x"])
+    return [Path(p) for p in _make_deps(text)]
+
+
+def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
+    """An OpenCL C program's LLVM IR before any optimisation (nothing inlined away): who calls whom,
+    as the compiler reads the code (rtlab.course.lab_calls)."""
+    return _run_clang(source, include_dirs, defines, "opencl",
+                      ["-emit-llvm", "-S", "-o", "-", "-Xclang", "-disable-llvm-passes",
+                       "-Xclang", "-finclude-default-header", "-w"])
 
 
 class PreprocessorError(RuntimeError):

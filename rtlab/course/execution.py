@@ -18,6 +18,13 @@ from .processes import ChildResult, Limits, ProcessFailed, TestProcess, run_once
 from .workers import ReferenceWorker, process_env
 
 
+def hits_of(ref) -> int:
+    """How many rays of the grader's answers hit a triangle (0 where the test keeps no hits)."""
+    import numpy as np
+    tri = getattr(ref, "tri", None)
+    return int((np.asarray(tri) >= 0).sum()) if tri is not None else 0
+
+
 class TestExecution:
     """What GradingRun does for one test (GradingRun sets config, work, tree, user, sandboxed,
     builds, secret, deadline_at, time_scale, has_reference and the locks these read)."""
@@ -29,11 +36,13 @@ class TestExecution:
 
     def job(self, spec: TestSpec, mode: str = "once", count_work: bool = False) -> dict:
         from .checks import HARNESS_DIR
+        from .lab_calls import lab_call_rules
         run_spec = spec.as_dict()
         run_spec["params"] = {k: v for k, v in run_spec["params"].items() if k != "seed"}   # rays come made
         return {"spec": run_spec, "step": self.config.step, "backend": self.backend, "device": self.device,
                 "mode": mode, "count_work": count_work, "memory_limit_mb": self.config.memory_limit_mb,
-                "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)]}
+                "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)],
+                "lab_calls": lab_call_rules(self.config.step)}
 
     def test_dir(self, spec: TestSpec, prepared, job: dict, suffix: str = "") -> Path:
         from . import sandbox
@@ -95,7 +104,7 @@ class TestExecution:
         if count:
             def over(work):
                 try:
-                    reference = self.reference_counts(spec, prepared)
+                    reference = self.reference_counts(spec, prepared)[0]
                 except ProcessFailed:
                     return False          # check_budget reports it
                 return work_budget_problem(work, reference, float(spec.tolerance["work_budget"])) is not None
@@ -132,27 +141,36 @@ class TestExecution:
 
     def check_budget(self, spec: TestSpec, prepared, r: ChildResult) -> ChildResult:
         """The work budget: the reads the process counted on the test's first rays (sent before its
-        own launch, so known even when that one crashes or never ends) against the reference
-        kernel's on the same rays."""
+        own launch, so known even when that one crashes or never ends) and in the launch whose hits
+        were checked, each against the reference kernel's on the same rays; and in that launch at
+        least one triangle read through the lab's loaders for each hit it returned."""
         from .channel import ChannelError, expect_arrays
-        from .checks import work_budget_problem
+        from .checks import work_budget_problem, work_floor_problem
         try:
             work = expect_arrays({"work": r.info.get("work")} if r.info.get("work") is not None else {},
                                  {"work": ("int64", (2,))})["work"]
+            run = expect_arrays(r.arrays, {"work_run": ("int64", (2,))})["work_run"] if r.status == "ok" else None
         except ChannelError as e:
             if r.status != "ok":
                 return r
             return replace(r, status="error", fraction=0.0, output=f"{r.output}\nbut the work count is missing: {e}")
         try:
-            reference = self.reference_counts(spec, prepared)
+            reference, reference_run = self.reference_counts(spec, prepared)
         except ProcessFailed as e:
             return replace(r, status="error", fraction=0.0, output="grader error (not your code): the reference "
                                                                    f"kernel's count failed: {e.result.output}")
         data = {**r.data, "work": [int(x) for x in work], "reference_work": [int(x) for x in reference]}
-        problem = work_budget_problem(work, reference, float(spec.tolerance["work_budget"]))
+        budget = float(spec.tolerance["work_budget"])
+        problem = work_budget_problem(work, reference, budget)
+        where = "its first rays"
+        if not problem and run is not None:
+            data.update(work_run=[int(x) for x in run], reference_work_run=[int(x) for x in reference_run])
+            where = "the rays it was checked on"
+            problem = (work_budget_problem(run, reference_run, budget)
+                       or work_floor_problem(run, hits_of(prepared.expected.get("ref"))))
         if problem:
             head = {"ok": f"{r.output}\nbut on", "budget": "stopped: on"}.get(r.status, f"({r.output})\non")
-            return replace(r, status="ok", fraction=0.0, data=data, output=f"{head} its first rays it {problem}")
+            return replace(r, status="ok", fraction=0.0, data=data, output=f"{head} {where} it {problem}")
         if r.status == "budget":
             return replace(r, status="error", data=data, output="grader error (not your code): stopped for a work "
                                                                  "budget it keeps")
@@ -162,14 +180,16 @@ class TestExecution:
         return replace(r, data=data, output=f"{r.output}; reads {ratio:.2f}x the reference kernel's on its first rays")
 
     def reference_counts(self, spec: TestSpec, prepared):
-        """(tree reads, triangle reads) of the reference kernel on the test's first rays."""
+        """(tree reads, triangle reads) of the reference kernel on the test's first rays, and on all of
+        them: (first, all)."""
         if spec.name in self.ref_counts:
             return self.ref_counts[spec.name]
         worker = self.reference_worker()
         job = {**self.job(spec, count_work=True), "sandbox": False, "check_includes": False}
-        header, arrays, _ = worker.produce(spec.name + ".work", job, input_bytes(prepared), {"probe_only": True}, 120.0)
+        header, arrays, _ = worker.produce(spec.name + ".work", job, input_bytes(prepared), {"counts_only": True}, 120.0)
         from .channel import expect_arrays
-        self.ref_counts[spec.name] = expect_arrays(arrays, {"work": ("int64", (2,))})["work"]
+        counts = expect_arrays(arrays, {"work": ("int64", (2,)), "work_run": ("int64", (2,))})
+        self.ref_counts[spec.name] = (counts["work"], counts["work_run"])
         return self.ref_counts[spec.name]
 
     def run_speed(self, spec: TestSpec, prepared) -> ChildResult:

@@ -10,7 +10,8 @@ never an expected answer). In order:
    unprivileged user.
 2. **Setup** (no submitted code runs): the kind's setup uploads the scene and compiles every kernel
    the test launches; each compile is checked first by the preprocessor's own list of what the
-   source includes (rtlab.course.deps). ``{"event": "compile"}`` before each restarts the grader's setup limit.
+   source includes (rtlab.course.deps) and by the lab-call rule on the compiler's own call graph
+   (rtlab.course.lab_calls). ``{"event": "compile"}`` before each restarts the grader's setup limit.
 3. **Close the sandbox:** PoCL's binaries built (rtlab.backends.opencl), the system-call filter
    installed; ``{"event": "ready"}``. The process then waits for the grader's go: before any
    submitted code has run, the grader takes the binaries just built into the run's shared kernel
@@ -45,8 +46,9 @@ class Recorder:
     """Wraps the backend's compile: a setup heartbeat before each, the preprocessor's include check,
     and the list of programs (for the grader's note on unfinished functions)."""
 
-    def __init__(self, allowed_roots: list[Path] | None):
+    def __init__(self, allowed_roots: list[Path] | None, lab_calls: dict | None = None):
         self.allowed = allowed_roots
+        self.lab_calls = lab_calls          # rtlab.course.lab_calls' rules for this step (None: no rule)
         self.programs: list[dict] = []
         self.closed = False
 
@@ -70,7 +72,12 @@ class Recorder:
                 self.programs.append(entry)
                 _send({"event": "programs", "programs": self.programs})
                 self.check_includes(backend, Path(path), defines)
+                unread = self.check_lab_calls(Path(path), defines)
+            else:
+                unread = None
             program = compile_(path, defines, options)
+            if unread:      # clang could not read what PoCL compiled: the rule cannot say, so it refuses
+                raise KernelBuildError(unread)
             if not getattr(program, "_recorded", False):
                 launch = program.launch
 
@@ -104,6 +111,32 @@ class Recorder:
             raise KernelBuildError(f"{REFUSED_MARK}{path.name} opens {outside[0]}, outside the submission's kernel "
                                    f"tree (the preprocessor's own list of what it includes)"
                                    + (f"; also {', '.join(outside[1:4])}" if len(outside) > 1 else ""))
+
+
+    def check_lab_calls(self, path: Path, defines) -> str | None:
+        """The lab-call rule (rtlab.course.lab_calls) on the program about to compile: KernelBuildError
+        when a graded function calls a lab function its reference does not; the refusal to raise after
+        the compile when clang cannot build the call graph (if the compiler fails too, its own error is
+        the clearer one)."""
+        if not self.lab_calls or not self.lab_calls.get("allowed"):
+            return None
+        from rtlab.course.deps import PreprocessorError, opencl_ir
+        from rtlab.course.lab_calls import ir_call_graph, lab_call_problem
+        from rtlab.course.submission import REFUSED_MARK
+        from rtlab.errors import KernelBuildError
+        from rtlab.paths import include_dirs
+        source = path if path.suffix == ".cl" else path.parent.parent / "opencl" / (path.stem + ".cl")
+        if not source.is_file():
+            return None                 # a CUDA-only program: no OpenCL twin to read (see lab_calls)
+        try:
+            ir = opencl_ir(source, [*include_dirs(source), source.parent], dict(defines))
+        except (PreprocessorError, RuntimeError, MemoryError) as e:
+            first = str(e).strip().splitlines()[:3]
+            return f"{REFUSED_MARK}{path.name}: its calls could not be read for the lab-call rule: {' '.join(first)}"
+        problem = lab_call_problem(ir_call_graph(ir), self.lab_calls)
+        if problem:
+            raise KernelBuildError(f"{REFUSED_MARK}{problem}")
+        return None
 
 
 def _confine(job: dict, test_dir: Path) -> None:
@@ -165,7 +198,8 @@ def test_main(test_dir: Path) -> int:
     from rtlab.course import sandbox
     from rtlab.paths import kernel_dir
     backend = get_backend(job["backend"], job.get("device"))
-    recorder = Recorder([kernel_dir(), checks.HARNESS_DIR] if job.get("check_includes", True) else None)
+    recorder = Recorder([kernel_dir(), checks.HARNESS_DIR] if job.get("check_includes", True) else None,
+                        job.get("lab_calls") if job.get("check_includes", True) else None)
     recorder.wrap(backend)
     checks.on_setup_compile(recorder.tick)
     try:

@@ -16,6 +16,8 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
   (``constructor``, ``ifunc``, ``section``...), no ``_Pragma``, ``__has_include``, token pasting ``##``
   (it builds names the rule could not see), and none of the spellings C and C++ read differently
   (raw strings, digit separators, trigraphs, unclosed quotes);
+* none of the work budget's instruments (``rt_work``, ``RT_COUNT_WORK``, ``load_hit_vertex``... of
+  rt_memory.h's counting build) outside the files whose reference uses them;
 * ASCII outside comments and string literals: a UTF-8 byte-order mark that opens the file is
   skipped, as clang skips it; any other byte above 127 there is refused with its line.
 
@@ -56,6 +58,11 @@ FORBIDDEN_IDENTIFIERS = {
        for base in ("constructor", "destructor", "ifunc", "alias", "weakref", "section", "init_priority", "symver")
        for name in (base, f"__{base}__")},
 }
+# The work budget's instruments (rt_memory.h's counting build): a file that names them could write or
+# skip its own counts. Only a file whose reference uses them (rt_memory.h; rt_intersect.h and
+# rt_shade.h read a hit's vertices uncounted) may.
+WORK_INSTRUMENTS = frozenset({"rt_work", "rt_counted", "RtNodeList", "RtFloat4List", "RtIntList", "RT_COUNT_WORK",
+                              "load_hit_vertex"})
 MAX_REFUSALS = 40       # refusals listed for one file (a file of 10^5 trigraphs is refused in one message)
 
 
@@ -145,6 +152,9 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
                            "without a byte-order mark, with non-ASCII text only in comments")
         elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
             refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
+        elif t.kind == "ident" and t.text in WORK_INSTRUMENTS and relpath not in rules.names_used.get(t.text, ()):
+            refuse(t.line, f"{t.text} is the work budget's counter (rt_memory.h): submitted kernels read the scene "
+                           f"through the lab's loaders and leave the counting to them")
         elif t.kind == "punct" and t.value == "##":
             refuse(t.line, "token pasting (##) is not allowed in submitted kernels")
         if len(problems) > 4 * MAX_REFUSALS:

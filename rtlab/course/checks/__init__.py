@@ -15,7 +15,7 @@ Messages say what was expected and what came, with the first pixel or ray that d
 """
 from __future__ import annotations
 
-from .base import HARNESS_DIR, Kind, Outcome, Prepared, Produced, on_setup_compile, work_budget_problem
+from .base import HARNESS_DIR, Kind, Outcome, Prepared, Produced, on_setup_compile, work_budget_problem, work_floor_problem
 from .camera import CameraRaysKind, check_camera_rays
 from .hits import CompileKind, IntersectLoopKind, RenderKind, TraceRaysKind
 from .memory import FetchSceneKind, NvccKind, PlacementKind
@@ -27,4 +27,4 @@ KINDS: dict[str, Kind] = {k.name: k for k in (CompileKind(), CameraRaysKind(), T
                                               FetchSceneKind(), PlacementKind(), NvccKind())}
 
 __all__ = ["HARNESS_DIR", "KINDS", "Kind", "Outcome", "Prepared", "Produced", "check_camera_rays", "on_setup_compile",
-           "speed_score", "time_against_reference", "work_budget_problem"]
+           "speed_score", "time_against_reference", "work_budget_problem", "work_floor_problem"]

@@ -107,6 +107,19 @@ def work_budget_problem(counts, reference, budget: float) -> str | None:
     return None
 
 
+def work_floor_problem(counts, hits: int) -> str | None:
+    """Why a launch that returned ``hits`` hits read fewer triangles through the lab's loaders than
+    that, or None. Each hit needs its own triangle's rows read, so fewer counted reads mean the kernel
+    read the scene some other way (a raw pointer past the loaders): its reads cannot be counted, and a
+    walk the budget cannot count does not pass it."""
+    got = int(counts[1])
+    if got >= hits:
+        return None
+    return (f"returned {hits:,} hits but read triangle data {got:,} times through the lab's loaders "
+            f"(load_tri_vertex, load_tri_data): a hit needs its triangle read, so it reads the scene some "
+            f"other way, past the loaders that count the work budget; read the scene through them")
+
+
 def spec_variant(spec):
     """A test's variant: the paper's (kd stack, Moller-Trumbore, 32x4), as the labs are, with what the
     test names replaced."""
@@ -232,25 +245,32 @@ def hits_agree(got_tri, got_t, ref_tri, ref_t, ref_u, ref_v, scene, faces, camer
 
 
 # --------------------------------------------------------------------------------------------------
-# what produce() shares: the work probe, a moved camera, fresh output buffers
+# what produce() shares: the work counts, a moved camera, fresh output buffers
 # --------------------------------------------------------------------------------------------------
 PROBE_RAYS = 256               # rays of a trace test whose reads are counted (the work budget)
 PROBE_IMAGE = (24, 24)         # the image of a render test whose reads are counted
 
 
-def work_probe(ds, launch, items: int, request: dict):
-    """The work budget's count: ``launch`` (a counting build on a few of the test's rays) with the
-    counters zeroed; the counts go to ``request["emit"]`` before the test's own launch (so the grader
-    has them even if that one never ends), or, with ``request["probe_only"]`` (the reference worker),
-    back as the whole result."""
-    ds.reserve_work_counters(items)
-    launch()
+def counted_produce(variant, ds, request: dict, probe, probe_items: int, run, run_items: int) -> "Produced":
+    """The test's launch ``run()`` (-> Produced), and with a counting build (``variant.count_work``) the
+    work budget's counts: first ``probe()`` on a few of the test's rays, its counts sent to
+    ``request["emit"]`` before the run (so the grader has them even if the run never ends), then the
+    run's own counts as the output ``work_run``: the launch whose hits the grader checks is counted
+    too, so a kernel that walks differently when it is probed gains nothing. The reference worker
+    asks with ``request["counts_only"]``: both counts, as the result."""
+    if not variant.count_work:
+        return run()
+    ds.reserve_work_counters(probe_items)
+    probe()
     work = ds.take_work_counts()
-    if request.get("probe_only"):
-        return Produced({"work": work})
     if request.get("emit"):
         request["emit"]({"work": work})
-    return None
+    ds.reserve_work_counters(run_items)
+    out = run()
+    counts = ds.take_work_counts()
+    if request.get("counts_only"):
+        return Produced({"work": work, "work_run": counts})
+    return Produced({**out.arrays, "work_run": counts}, out.info)
 
 
 def camera_scene(scene, request: dict):

@@ -9,7 +9,7 @@ import numpy as np
 from ...settings import HIT_T_REL_TOL
 from .base import (DEFAULT_WORK_BUDGET, PROBE_IMAGE, PROBE_RAYS, Kind, Outcome, Prepared, Produced, camera_scene,
                    describe_hit_errors, describe_image_error, device_scene_of, fresh_outputs, hits_agree, pixel_namer,
-                   primary_step_of, ray_namer, require_hits, spec_variant, work_budget_applies, work_probe)
+                   primary_step_of, ray_namer, require_hits, spec_variant, work_budget_applies, counted_produce)
 
 
 class CompileKind(Kind):
@@ -77,13 +77,10 @@ class TraceRaysKind(Kind):
             return trace(inputs["scene"], o[:count], d[:count], backend=backend, variant=variant, tmin=p["tmin"],
                          tmax=p["tmax"], lab=True)
 
-        if variant.count_work:
-            probe = work_probe(ds, lambda: traced(PROBE_RAYS), PROBE_RAYS, request)
-            if probe is not None:
-                return probe
-            ds.reserve_work_counters(len(o))        # the counting build counts the whole run too
-        got = traced(len(o))
-        return Produced({"t": got.t, "tri": got.tri}, {"kernel_ms": got.kernel_ms})
+        def run():
+            got = traced(len(o))
+            return Produced({"t": got.t, "tri": got.tri}, {"kernel_ms": got.kernel_ms})
+        return counted_produce(variant, ds, request, lambda: traced(PROBE_RAYS), PROBE_RAYS, run, len(o))
 
     def outputs(self, spec, inputs):
         n = len(inputs["origins"])
@@ -167,16 +164,17 @@ class RenderKind(Kind):
         from ...device.rendering import render
         spec, inputs, backend, variant = state
         scene = camera_scene(inputs["scene"], request)
-        if variant.count_work:
-            small = replace(scene, camera=scene.camera.with_size(*PROBE_IMAGE))
-            probe = work_probe(device_scene_of(scene, backend), lambda: render(small, backend, variant, write_hits=True, lab=True),
-                               PROBE_IMAGE[0] * PROBE_IMAGE[1] + 64 * 64, request)
-            if probe is not None:
-                return probe
-            device_scene_of(scene, backend).reserve_work_counters((scene.camera.width + 64) * (scene.camera.height + 64))
-        r = render(scene, fresh_outputs(backend, request), variant, write_hits=True, lab=True)
-        arrays = {"image": r.image, "t": r.hits.t, "tri": r.hits.tri, "u": r.hits.u, "v": r.hits.v}
-        return Produced(arrays, {"kernel_ms": float(r.kernel_ms[0])})
+        small = replace(scene, camera=scene.camera.with_size(*PROBE_IMAGE))
+
+        def run():
+            r = render(scene, fresh_outputs(backend, request), variant, write_hits=True, lab=True)
+            arrays = {"image": r.image, "t": r.hits.t, "tri": r.hits.tri, "u": r.hits.u, "v": r.hits.v}
+            return Produced(arrays, {"kernel_ms": float(r.kernel_ms[0])})
+        # launches round their grids up to whole blocks: room for a margin of 64 a side
+        return counted_produce(variant, device_scene_of(scene, backend), request,
+                               lambda: render(small, backend, variant, write_hits=True, lab=True),
+                               (PROBE_IMAGE[0] + 64) * (PROBE_IMAGE[1] + 64), run,
+                               (scene.camera.width + 64) * (scene.camera.height + 64))
 
     def outputs(self, spec, inputs, camera=None):
         cam = camera or inputs["scene"].camera
