@@ -144,6 +144,30 @@ def prepare_process() -> None:
     # Read only when numba first starts its threads.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     ensure_user_cache()
+    if "NUMBA_CACHE_DIR" not in os.environ:     # read when numba is first imported, right after this
+        os.environ["NUMBA_CACHE_DIR"] = str(numba_cache_dir())
+
+
+def numba_cache_dir(keep: int = 3) -> Path:
+    """numba's cache of rtlab's compiled functions: a folder per content of the modules that compile
+    with numba. numba revalidates a cached function by its own file's time stamp only, so a function
+    that inlines another module's (the float64 reference's walk and its triangle test) would keep a
+    stale compile when only that module changed. The ``keep`` most recent folders stay."""
+    import hashlib
+    digest = hashlib.sha256()
+    for path in sorted(PACKAGE_DIR.rglob("*.py")):
+        text = path.read_bytes()
+        if b"jit import" in text:              # a module compiling with numba (rtlab.jit)
+            digest.update(path.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0" + text)
+    root = user_cache_dir() / "numba"
+    folder = root / digest.hexdigest()[:16]
+    if not folder.is_dir():
+        folder.mkdir(parents=True, exist_ok=True)
+        import shutil
+        older = sorted((d for d in root.iterdir() if d.is_dir() and d != folder), key=lambda d: d.stat().st_mtime)
+        for stale in older[:max(0, len(older) - (keep - 1))]:
+            shutil.rmtree(stale, ignore_errors=True)
+    return folder
 
 
 def ensure_user_cache() -> None:

@@ -585,3 +585,29 @@ def test_the_function_rule_finds_what_it_should():
     assert [f.split()[1] for f in found] == ["long_one", "wide", "wide_numba"], found
     said = _unreasoned_functions('"""Why many parameters: numba"""\n' + src, "x.py")
     assert [f.split()[1] for f in said] == ["long_one", "wide"], said
+
+
+def test_numba_cache_folder_follows_the_modules_that_compile_with_numba(tmp_path, monkeypatch):
+    """numba revalidates a cached function by its own file's time stamp only: the float64 reference's
+    walk (tracer.py) kept its compile of an old triangle test (watertight.py) and raised where the new
+    one misses. The cache folder now changes with the content of every module that compiles with
+    numba, not with the others, and the three newest folders stay."""
+    from rtlab import paths
+    package = tmp_path / "package"
+    (package / "sub").mkdir(parents=True)
+    (package / "walk.py").write_text("from .jit import njit\n")
+    (package / "sub" / "test.py").write_text("from ..jit import njit\nX = 1\n")
+    (package / "plain.py").write_text("X = 1\n")
+    monkeypatch.setattr(paths, "PACKAGE_DIR", package)
+    monkeypatch.setattr(paths, "user_cache_dir", lambda: tmp_path / "cache")
+    first = paths.numba_cache_dir()
+    (package / "plain.py").write_text("X = 2\n")
+    assert paths.numba_cache_dir() == first
+    (package / "sub" / "test.py").write_text("from ..jit import njit\nX = 2\n")
+    second = paths.numba_cache_dir()
+    assert second != first and second.is_dir()
+    for k in range(5):
+        (package / "walk.py").write_text(f"from .jit import njit\nY = {k}\n")
+        newest = paths.numba_cache_dir()
+    folders = list((tmp_path / "cache" / "numba").iterdir())
+    assert len(folders) == 3 and newest in folders

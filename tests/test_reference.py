@@ -428,3 +428,15 @@ def test_refhits_points():
     a, b, c = vertices[faces[0]].astype(np.float64)
     np.testing.assert_allclose(p[0], 0.25 * a + 0.25 * b + 0.5 * c)
     assert np.isnan(p[1]).all()
+
+
+def test_a_ray_parallel_to_a_triangle_that_the_shear_lets_through_misses():
+    """The rounded shear let this ray through the edges of a triangle it runs parallel to (n . d = 0
+    exactly); the reference's plane divided by zero and numba raised ZeroDivisionError (as SystemError)
+    out of reference_trace. It misses, as the brute force and the kernels say."""
+    v = np.array([[2.75, 1.25, 0.0], [3.0, 1.25, 0.25], [3.0, 1.5, 1.0]], np.float32)
+    f = np.array([[0, 1, 2]])
+    o, d = np.array([[3.875, 1.25, 1.125]]), np.array([[-0.4375, 0.125, -0.0625]])
+    assert np.cross(v[1].astype(float) - v[0], v[2].astype(float) - v[0]) @ d[0] == 0.0
+    assert reference_trace(v, f, o, d, cache=False).tri[0] == -1
+    assert brute_force_trace(v, f, o, d).tri[0] == -1

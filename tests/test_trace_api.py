@@ -183,6 +183,50 @@ def test_an_empty_interval_misses_and_inf_is_no_limit(backend, sphere_scene):
     assert trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, tmax=np.inf).tri[:2].min() >= 0
 
 
+UNIT_T = (np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
+
+
+@pytest.mark.parametrize("tmin,tmax,hits", [
+    (0.0, 1.0 + 1e-12, True), (1.0 - 1e-12, np.inf, True), (1.0 - 2.0 ** -25, 5.0, True),
+    (0.0, 1.0 - 2.0 ** -25, False), (0.0, 1.0, False), (1.0, 5.0, False), (1.0 + 2.0 ** -24, 5.0, False)])
+@pytest.mark.parametrize("variant", [None, "bvh", "bvh-wide", "stack"])
+def test_ray_bounds_keep_every_t_of_the_callers_interval(backend, tmin, tmax, hits, variant):
+    """A hit at exactly t = 1 against float64 bounds that lie within a float32 step of it: the kernels
+    hit where the float64 reference does. Rounded to nearest, tmax = 1 + 1e-12 became 1.0 and tmin =
+    1 - 1e-12 became 1.0, and both dropped the hit."""
+    vertices, faces = UNIT_T
+    scene = rtlab.scene_from_arrays(vertices, faces)
+    o, d = np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+    ref = reference_trace(vertices, faces, o, d, tmin, tmax, cache=False)
+    got = trace(scene, o, d, backend=backend, variant=variant, tmin=tmin, tmax=tmax)
+    assert (ref.tri[0] == 0) == hits and got.tri[0] == ref.tri[0]
+    if hits:
+        assert got.t[0] == 1.0
+
+
+def test_float32_bounds_round_away_from_the_interval():
+    from rtlab.device.tracing import float32_outward
+    x = np.array([0.0, 1e-50, 1.0, 1.0 + 1e-12, 1.0 - 1e-12, 1e39, np.inf])
+    down, up = float32_outward(x, -1).astype(np.float64), float32_outward(x, +1).astype(np.float64)
+    assert np.all(down <= x) and np.all(up >= x)
+    assert down[0] == 0.0 and down[2] == up[2] == 1.0 and up[5] == np.inf and down[5] == np.finfo(np.float32).max
+    assert np.all(np.nextafter(down[:5].astype(np.float32), np.float32(np.inf)).astype(np.float64) > x[:5])
+
+
+@pytest.mark.parametrize("variant", [None, "bvh", "bvh-wide", "bvh-packet", "stack"])
+def test_edge_functions_that_overflow_miss_rather_than_hit(backend, variant):
+    """A scene at 1e20 (beyond the range the ScaleWarning names): the float32 edge products overflow
+    to inf - inf = NaN, which passed the old sign test, and a ray well outside the triangle hit it."""
+    import warnings
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64) * 1e20
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = rtlab.scene_from_arrays(vertices, np.array([[0, 1, 2]]))
+    o, d = np.array([[0.7, 0.7, 1.0]]) * 1e20, np.array([[0.0, 0.0, -1.0]])     # x + y = 1.4: outside
+    assert reference_trace(scene.vertices, scene.faces, o, d, cache=False).tri[0] == -1
+    assert trace(scene, o, d, backend=backend, variant=variant).tri[0] == -1
+
+
 @pytest.mark.parametrize("bad,kind", [
     (RAYS_D.astype(complex), "complex numbers"), (RAYS_D.astype(str), "strings"),
     (np.array([[0, 0, None]] * 3), "Python objects"), (RAYS_D.astype(bool), "booleans"),

@@ -95,13 +95,14 @@ RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef
         e2 = lf_select(e2, lf_diff_of_products_fp64(bx2, ay2, by2, ax2), at_edge);
     }
 #endif
-    lanei negative = li_or(li_or(lf_lt(e0, zero), lf_lt(e1, zero)), lf_lt(e2, zero));
-    lanei positive = li_or(li_or(lf_lt(zero, e0), lf_lt(zero, e1)), lf_lt(zero, e2));
+    /* one sign, zeros included; a NaN (an overflowing product) has none, so it misses */
+    lanei nonnegative = li_and(li_and(lf_le(zero, e0), lf_le(zero, e1)), lf_le(zero, e2));
+    lanei nonpositive = li_and(li_and(lf_le(e0, zero), lf_le(e1, zero)), lf_le(e2, zero));
     *u = e0;
     *v = e1;
     *w = e2;
     *det = lf_add(lf_add(e0, e1), e2);
-    return li_andnot(li_andnot(li_splat(-1), li_and(negative, positive)), lf_eq(*det, zero));
+    return li_andnot(li_or(nonnegative, nonpositive), lf_eq(*det, zero));
     /* END SOLUTION */
 }
 

@@ -152,6 +152,18 @@ def _scaled_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return scaled.astype(np.float32), scale
 
 
+def float32_outward(x: np.ndarray, side: int) -> np.ndarray:
+    """float64 ray bounds as float32, rounded away from the interval (``side`` -1: down, for tmin; +1:
+    up, for tmax), so every t of the caller's interval (tmin, tmax) stays inside the kernels' strict
+    tmin < t < tmax: rounded to nearest, tmax = 1 + 1e-12 became 1 and dropped a hit at t = 1."""
+    x = np.asarray(x, np.float64)
+    with np.errstate(over="ignore"):
+        f = x.astype(np.float32)
+    past = f.astype(np.float64) > x if side < 0 else f.astype(np.float64) < x
+    f[past] = np.nextafter(f[past], np.float32(side * np.inf))
+    return f
+
+
 def _bound_array(value, name: str, n: int) -> np.ndarray:
     if value is None:
         raise RtlabError(f"{name} must be a number or one number per ray, got None (use 0.0 for tmin, "
@@ -277,8 +289,8 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     program = load_program(backend, name, variant, features, trace_threads=TRACE_BLOCK, **(defines or {}))
     ds.set_constants(program, None, variant)
     o_buf, d_buf, h_buf = ray_buffers(backend, n)
-    backend.fill(o_buf, float4_rows(origins, lo * scale))
-    backend.fill(d_buf, float4_rows(directions, hi * scale))
+    backend.fill(o_buf, float4_rows(origins, float32_outward(lo * scale, -1)))
+    backend.fill(d_buf, float4_rows(directions, float32_outward(hi * scale, +1)))
     lanes = rays_per_work_item(variant)        # a packet traversal takes several consecutive rays an item:
     items = -(-n // lanes)                     # the pixels of a row segment when the rays are an image
     if width is not None and (int(width) <= 0 or n % int(width)):

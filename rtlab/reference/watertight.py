@@ -114,9 +114,10 @@ def woop_numpy(a, b, c, d, kx, ky, kz, sx, sy, sz):
         eu = cx * by - cy * bx
         ev = ax * cy - ay * cx
         ew = bx * ay - by * ax
-        mixed = ((eu < 0) | (ev < 0) | (ew < 0)) & ((eu > 0) | (ev > 0) | (ew > 0))
+        # one sign, zeros included (a NaN, from products beyond double's range, has none)
+        one_sign = ((eu >= 0) & (ev >= 0) & (ew >= 0)) | ((eu <= 0) & (ev <= 0) & (ew <= 0))
         det = eu + ev + ew
-        inside = ~mixed & (det != 0.0)
+        inside = one_sign & (det != 0.0)
         t = plane_t_numpy(a, b, c, d)
         return t, eu / det, ev / det, ew / det, inside
 
@@ -149,7 +150,9 @@ def ray_shear(dx, dy, dz):
 
 @njit(cache=True, inline="always")
 def plane_t(tv, j, ox, oy, oz, dx, dy, dz):
-    """plane_t_numpy on triangle row j of tv, the same operations in the same order."""
+    """plane_t_numpy on triangle row j of tv, the same operations in the same order. A ray parallel to
+    the plane (that the rounded shear let through the edges) gets NaN, a miss, where plane_t_numpy
+    divides by zero to inf or NaN, a miss too (numba's division would raise)."""
     ax, ay, az = tv[j, 0] - ox, tv[j, 1] - oy, tv[j, 2] - oz
     bx, by, bz = tv[j, 3] - ox, tv[j, 4] - oy, tv[j, 5] - oz
     cx, cy, cz = tv[j, 6] - ox, tv[j, 7] - oy, tv[j, 8] - oz
@@ -160,6 +163,8 @@ def plane_t(tv, j, ox, oy, oz, dx, dy, dz):
     nz = e1x * e2y - e1y * e2x
     num = nx * ax + ny * ay + nz * az
     den = nx * dx + ny * dy + nz * dz
+    if den == 0.0:
+        return math.nan
     return num / den
 
 
@@ -190,7 +195,7 @@ def woop_hit(tv, j, ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz):
     eu = cx * by - cy * bx
     ev = ax * cy - ay * cx
     ew = bx * ay - by * ax
-    if (eu < 0.0 or ev < 0.0 or ew < 0.0) and (eu > 0.0 or ev > 0.0 or ew > 0.0):
+    if not ((eu >= 0.0 and ev >= 0.0 and ew >= 0.0) or (eu <= 0.0 and ev <= 0.0 and ew <= 0.0)):
         return False, 0.0, 0.0, 0.0
     det = eu + ev + ew
     if det == 0.0:
