@@ -224,7 +224,10 @@ def test_edge_functions_that_overflow_miss_rather_than_hit(backend, variant):
         scene = rtlab.scene_from_arrays(vertices, np.array([[0, 1, 2]]))
     o, d = np.array([[0.7, 0.7, 1.0]]) * 1e20, np.array([[0.0, 0.0, -1.0]])     # x + y = 1.4: outside
     assert reference_trace(scene.vertices, scene.faces, o, d, cache=False).tri[0] == -1
-    assert trace(scene, o, d, backend=backend, variant=variant).tri[0] == -1
+    try:
+        assert trace(scene, o, d, backend=backend, variant=variant).tri[0] == -1
+    except rtlab.RtlabError as e:        # the wide BVHs (a GPU's default) refuse such a scene outright
+        assert variant is None and "coordinates" in str(e), e
 
 
 @pytest.mark.parametrize("bad,kind", [
