@@ -136,11 +136,10 @@ RT_FN int intersect_ray_tri_plucker(const Ray *ray, const TriPlucker *acc, int t
     float s0 = dot3(ray->d, xyz(acc->m0)) + dot3(xyz(acc->d0), m);   /* weight of v2 */
     float s1 = dot3(ray->d, xyz(acc->m1)) + dot3(xyz(acc->d1), m);   /* weight of v0 */
     float s2 = dot3(ray->d, xyz(acc->m2)) + dot3(xyz(acc->d2), m);   /* weight of v1 */
-    /* one sign, zeros included; a NaN (an overflowing product) has none, so it misses */
-    if (!((s0 >= 0.0f && s1 >= 0.0f && s2 >= 0.0f) || (s0 <= 0.0f && s1 <= 0.0f && s2 <= 0.0f)))
+    if ((s0 < 0.0f || s1 < 0.0f || s2 < 0.0f) && (s0 > 0.0f || s1 > 0.0f || s2 > 0.0f))
         return 0;
     float sum = s0 + s1 + s2;
-    if (sum == 0.0f)
+    if (!(sum < 0.0f || sum > 0.0f))       /* zero, or NaN (an overflowing product): a miss */
         return 0;
     float3 n = f3(acc->d0.w, acc->m0.w, acc->d1.w);
     float t = (acc->m1.w - dot3(n, ray->o)) / dot3(n, ray->d);
@@ -251,13 +250,13 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
         w = (float)((double)bx2 * (double)ay2 - (double)by2 * (double)ax2);
     }
 #endif
-    /* Without double a zero stays zero: an inclusive edge, so both neighbours hit (conservative).
-     * One sign, zeros included: a NaN (products overflowing far beyond the scene scales rtlab
-     * accepts) has none, so it misses rather than hits */
-    if (!((u >= 0.0f && v >= 0.0f && w >= 0.0f) || (u <= 0.0f && v <= 0.0f && w <= 0.0f)))
+    /* Without double a zero stays zero: an inclusive edge, so both neighbours hit (conservative) */
+    if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f))
         return 0;
     float det = u + v + w;
-    if (det == 0.0f)
+    /* Zero, or NaN: products overflowing far beyond the scene scales rtlab accepts pass the sign
+     * test above as NaN, and miss here rather than hit (an ordered compare, no dearer than == 0) */
+    if (!(det < 0.0f || det > 0.0f))
         return 0;
 #if RT_REFINE_T
     /* The edge functions decide whether; the plane decides where (plane_t_fp64) */
