@@ -228,13 +228,29 @@ class FilePolicy:
     write_files: list[Path] = field(default_factory=list)
 
 
+# /etc's secrets: the password hashes, sudo's rules, host keys and private keys. A test process kept at
+# uid 0 without capabilities (where the sandbox user cannot run the grader's Python) owns them, so the
+# Landlock rules, which can only allow, name every other entry of /etc instead of /etc itself.
+ETC_SECRETS = frozenset({"shadow", "shadow-", "gshadow", "gshadow-", "sudoers", "sudoers.d", "ssh", "ssl", "pki",
+                         "security", "krb5.keytab", "credstore", "credstore.encrypted", "letsencrypt", "polkit-1"})
+
+
+def etc_read_paths(etc: Path = Path("/etc")) -> list[Path]:
+    """Every entry of /etc but its secrets (ETC_SECRETS)."""
+    try:
+        names = sorted(os.listdir(etc))
+    except OSError:
+        return []
+    return [etc / name for name in names if name not in ETC_SECRETS]
+
+
 def system_read_paths() -> list[Path]:
     """What any Python process with PoCL, the CUDA compiler and the system linker reads: the
     system's folders, the Python installation (prefixes and sys.path entries other than a project
     checkout), rtlab's own package."""
     from ..paths import PACKAGE_DIR, PROJECT_DIR
-    paths = [Path(p) for p in ("/usr", "/lib", "/lib32", "/lib64", "/bin", "/sbin", "/etc", "/proc", "/sys", "/dev",
-                               "/opt")]
+    paths = [Path(p) for p in ("/usr", "/lib", "/lib32", "/lib64", "/bin", "/sbin", "/proc", "/sys", "/dev", "/opt")]
+    paths += etc_read_paths()
     paths += [Path(p) for p in {sys.prefix, sys.base_prefix, sys.exec_prefix, sys.base_exec_prefix}]
     for entry in sys.path:
         p = Path(entry or ".").resolve()
