@@ -112,7 +112,6 @@ class Recorder:
                                    f"tree (the preprocessor's own list of what it includes)"
                                    + (f"; also {', '.join(outside[1:4])}" if len(outside) > 1 else ""))
 
-
     def check_lab_calls(self, path: Path, defines) -> str | None:
         """The lab-call rule (rtlab.course.lab_calls) on the program about to compile: KernelBuildError
         when a graded function calls a lab function its reference does not; the refusal to raise after
