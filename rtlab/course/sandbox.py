@@ -237,10 +237,7 @@ ETC_SECRETS = frozenset({"shadow", "shadow-", "gshadow", "gshadow-", "sudoers", 
 
 def etc_read_paths(etc: Path = Path("/etc")) -> list[Path]:
     """Every entry of /etc but its secrets (ETC_SECRETS)."""
-    try:
-        names = sorted(os.listdir(etc))
-    except OSError:
-        return []
+    names = sorted(os.listdir(etc)) if etc.is_dir() else []
     return [etc / name for name in names if name not in ETC_SECRETS]
 
 
