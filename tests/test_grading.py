@@ -566,6 +566,13 @@ def test_lab03_brute_force_that_hides_from_the_work_budget_scores_nothing(tmp_pa
         assert "every ray" in t.output or "but on" in t.output, t.output
 
 
+def test_a_stub_that_returns_no_hit_is_not_taken_for_a_raw_reader(tmp_path):
+    """The floor of one counted triangle read a hit counts the hits the kernel returned: the template's
+    stub (every ray a miss) fails on its hits, not with "reads the scene some other way"."""
+    t = grade(STEP, materialize("template", tmp_path / "sub"), tests=["trace_random_rays"]).test("trace_random_rays")
+    assert t.score == 0 and "past the loaders" not in t.output and "got a miss" in t.output, t.output
+
+
 def test_later_step_function_is_a_stub_in_lab00(tmp_path):
     """Lab 00 whose traverse_kd_stack calls lab 03's traverse_kd_restart (≈ 98 / 100 with the old
     grader): the lab-call rule refuses it (and lab 03's solution is not in lab 00's tree either)."""
@@ -981,6 +988,35 @@ def test_config_errors_name_the_problem(tmp_path):
         p.write_text(base + extra + "\n")
         with pytest.raises(LabError, match=re.escape(message)):
             load_config(p)
+
+
+def test_grade_arguments_that_select_nothing_are_errors(tmp_path):
+    """`--tests ,` graded nothing and passed (0 / 0, even with --require-full-marks); `--deadline 0`
+    became grading.toml's 480 s and -1 was taken; a file given as the submission was "a folder that
+    does not exist"."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "file.h").write_text("int x;\n")
+    with pytest.raises(LabError, match="no test named: choose from compile"):
+        grade(STEP, tmp_path / "sub", tests=[])
+    for bad in (0, -1):
+        with pytest.raises(LabError, match="deadline must be a positive number of seconds"):
+            grade(STEP, tmp_path / "sub", deadline=bad)
+    with pytest.raises(LabError, match="is not a folder"):
+        grade(STEP, tmp_path / "file.h")
+    from rtlab.cli import main
+    assert main(["grade", STEP, str(tmp_path / "sub"), "--tests", ","]) != 0
+
+
+def test_harness_paths_read_as_the_harness_in_a_checkout():
+    """The harness lies inside the checkout, whose root reads as reference/: its own files read as
+    rtlab/course/harness/..., not as reference/rtlab/course/harness/... (a path that does not exist)."""
+    from rtlab.course.checks import HARNESS_DIR
+    from rtlab.course.messages import _clean
+    from rtlab.paths import PROJECT_DIR
+    text = f"{HARNESS_DIR}/camera_rays.cl:3:1: error: x; {PROJECT_DIR}/kernels/shared/rt_types.h:5:1"
+    cleaned = _clean(text, [(PROJECT_DIR, "reference/")])
+    assert "rtlab/course/harness/camera_rays.cl:3:1" in cleaned and "reference/rtlab" not in cleaned
+    assert "reference/kernels/shared/rt_types.h:5:1" in cleaned
 
 
 def test_compile_message_puts_file_and_line_first():

@@ -386,14 +386,17 @@ def test_lexer_reads_as_clang_does():
         [(2, "a byte outside ASCII out"), (3, "the attribute constructo")], problems
 
 
-def test_student_wheel_holds_no_solution(tmp_path):
+def test_student_wheel_holds_no_solution(tmp_path, monkeypatch):
     """`rtlab lab release --wheel`: the wheel a notebook server installs ships the release's stubbed
     kernels only; the same check finds every solution in the repository's kernels (what `pip install .`
-    of the repository would ship)."""
+    of the repository would ship). The release is named as a bare relative folder, which pip once read
+    as a PyPI project of that name."""
     import zipfile
     from rtlab.course.release import build_wheel, wheel_solutions, write_release
-    release = write_release(tmp_path / "release")
-    wheel = build_wheel(release)
+    monkeypatch.chdir(tmp_path)
+    release = write_release(Path("release"))
+    wheel = build_wheel(Path("release"))
+    assert wheel.name.startswith("rtlab-") and wheel.parent == (tmp_path / "release" / "dist")
     assert wheel_solutions(wheel) == [] and any("_data/kernels/shared/rt_kdtree.h" in n
                                                  for n in zipfile.ZipFile(wheel).namelist())
     repo = tmp_path / "repo.whl"

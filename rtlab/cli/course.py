@@ -117,7 +117,7 @@ def grade_command(step: Optional[str] = typer.Argument(None, help="lab step, e.g
         cap_grader_memory(step)
         secret = read_secret(secret_file) if secret_file else None
         report = grade(step, submission, backend=backend, device=device,
-                       tests=[t for t in tests.split(",") if t] if tests else None, jobs=jobs, keep=keep,
+                       tests=[t for t in tests.split(",") if t.strip()] if tests is not None else None, jobs=jobs, keep=keep,
                        progress=progress, secret=secret, deadline=deadline, on_update=on_update)
     except Exception as e:  # the grader always writes results, even when it cannot grade
         report = grading_failure_report(step, submission, backend, e)

@@ -18,10 +18,10 @@ from .processes import ChildResult, Limits, ProcessFailed, TestProcess, run_once
 from .workers import ReferenceWorker, process_env
 
 
-def hits_of(ref) -> int:
-    """How many rays of the grader's answers hit a triangle (0 where the test keeps no hits)."""
+def returned_hits(arrays: dict) -> int:
+    """How many hits the test process returned (its ``tri`` output; 0 where a test returns none)."""
     import numpy as np
-    tri = getattr(ref, "tri", None)
+    tri = arrays.get("tri")
     return int((np.asarray(tri) >= 0).sum()) if tri is not None else 0
 
 
@@ -167,7 +167,7 @@ class TestExecution:
             data.update(work_run=[int(x) for x in run], reference_work_run=[int(x) for x in reference_run])
             where = "the rays it was checked on"
             problem = (work_budget_problem(run, reference_run, budget)
-                       or work_floor_problem(run, hits_of(prepared.expected.get("ref"))))
+                       or work_floor_problem(run, returned_hits(r.arrays)))
         if problem:
             head = {"ok": f"{r.output}\nbut on", "budget": "stopped: on"}.get(r.status, f"({r.output})\non")
             return replace(r, status="ok", fraction=0.0, data=data, output=f"{head} {where} it {problem}")

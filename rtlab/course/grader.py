@@ -309,14 +309,20 @@ def grade(step: str, submission, backend: str = "opencl", device: str | None = N
     config = config or load_config(step)
     submission = Path(submission)
     if not submission.is_dir():
-        raise LabError(f"submission folder {submission} does not exist")
+        raise LabError(f"submission {submission} is not a folder: hand in the folder that holds the kernel files"
+                       if submission.exists() else f"submission folder {submission} does not exist")
+    if tests is not None and not tests:
+        raise LabError(f"no test named: choose from {', '.join(t.name for t in config.tests)}")
+    if deadline is not None and not deadline > 0:
+        raise LabError(f"the deadline must be a positive number of seconds, got {deadline:g}")
     if tests:
         unknown = sorted(set(tests) - {t.name for t in config.tests})
         if unknown:
             raise LabError(f"lab {config.step} has no test {', '.join(unknown)}")
     specs = [t for t in config.tests if tests is None or t.name in tests]
     run = GradingRun(config, submission, specs, backend, device, jobs or default_jobs(config.memory_limit_mb),
-                     time_scale, secret or secrets.token_hex(16), deadline or config.deadline, progress, on_update)
+                     time_scale, secret or secrets.token_hex(16), config.deadline if deadline is None else deadline,
+                     progress, on_update)
     try:
         report = run.run()
     finally:

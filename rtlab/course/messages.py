@@ -12,7 +12,8 @@ MAX_NOTE = 2000          # characters of one note in the report
 def _clean(text: str, roots: list[tuple[Path, str]]) -> str:
     """Paths of the grader's folders read as the student's: kernels/shared/rt_types.h:57:5."""
     from .checks import HARNESS_DIR
-    for root, to in [*roots, (HARNESS_DIR, "rtlab/course/harness/")]:
+    # the longest first: the harness lies inside the checkout, whose own root reads as reference/
+    for root, to in sorted([*roots, (HARNESS_DIR, "rtlab/course/harness/")], key=lambda r: -len(str(r[0]))):
         text = text.replace(str(root) + os.sep, to)
     return text
 

@@ -137,7 +137,7 @@ def build_wheel(release: Path) -> Path:
     stubbed kernels as rtlab/_data/kernels), checked to hold no solution. Returns its path."""
     import subprocess
     import sys
-    release = Path(release)
+    release = Path(release).resolve()   # a bare name ("rel") is a PyPI project to pip, not this folder
     dist = release / "dist"
     dist.mkdir(exist_ok=True)
     cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(release)]
