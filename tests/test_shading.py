@@ -498,3 +498,30 @@ def test_table5_bounce_rows_measure_every_schedule(backend, glass):
     assert 0 < e["wave_rays"] <= e["compact_rays"] < row.rays
     md = table5_markdown([row], "test")
     assert "wavefront fps" in md and f"| {row.backend} | 2 bounces |" in md
+
+
+@pytest.mark.parametrize("bounces", ["2", None, 2.0, True, -1, 17])
+def test_bounces_that_are_not_a_whole_number_in_range_are_errors(bounces):
+    """bounces="2" or None raised a raw TypeError (``bounces > 0``) before the check that names it."""
+    with pytest.raises(RtlabError, match="bounces must be a whole number from 0 to 16"):
+        render_whitted(glass_scene(size=8), "opencl", bounces=bounces)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(reflectivity=float("nan")), "its numbers must be finite"),
+    (dict(reflectivity=2.0), "shares of the light"),
+    (dict(reflectivity=0.6, transparency=0.6), "together at most 1"),
+    (dict(transparency=0.9, ior=0.0), "index of refraction must be > 0, got 0"),
+    (dict(transparency=0.9, ior=-1.0), "index of refraction must be > 0, got -1"),
+    (dict(diffuse=(0.5, -0.1, 0.5)), "colours and shininess must be >= 0"),
+])
+def test_materials_the_shading_cannot_use_are_errors(change, message):
+    """A material changed after the scene was made: NaN reflectivity raised ValueError deep in the bounce
+    count, and ior <= 0 or reflectivity 2 rendered without a word. The scene's check names the material;
+    an opaque material may keep MTL's Ni 0."""
+    scene = glass_scene(size=8)
+    scene.materials[2] = Material("glass", **change)
+    with pytest.raises(RtlabError, match=rf"material 2 \('glass'\): .*{message}"):
+        render_whitted(scene, "opencl", bounces=1)
+    scene.materials[2] = Material("opaque", ior=0.0)
+    scene.check_materials()

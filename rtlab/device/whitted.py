@@ -94,6 +94,12 @@ class WhittedResult:
         return sum(launch.rays for launch in self.launches if launch.kernel not in PACK_KERNELS + ("shade_records",))
 
 
+def check_bounces(bounces) -> None:
+    if isinstance(bounces, bool) or not isinstance(bounces, (int, np.integer)) \
+            or not 0 <= bounces <= SceneFeatures.max_bounces:
+        raise RtlabError(f"bounces must be a whole number from 0 to {SceneFeatures.max_bounces}, not {bounces!r}")
+
+
 def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact: bool = False,
                     write_hits: bool = False, tree: bool = False, schedule: str = "tree") -> dict:
     """Defines beyond the scene's own (rtlab.device.kernels.build_defines) for one render mode."""
@@ -105,8 +111,7 @@ def shading_defines(features, shadows: str, bounces: int, fresnel: str, compact:
         raise RtlabError("the wavefront schedule shades where it traces: shadows one-pass or none, not two-pass")
     if fresnel not in FRESNEL_MODES:
         raise RtlabError(f"fresnel must be one of {', '.join(FRESNEL_MODES)}, not {fresnel!r}")
-    if not isinstance(bounces, (int, np.integer)) or not 0 <= bounces <= SceneFeatures.max_bounces:
-        raise RtlabError(f"bounces must be a whole number from 0 to {SceneFeatures.max_bounces}, not {bounces!r}")
+    check_bounces(bounces)
     defines = {"RT_SHADOWS": int(features.has_lights and shadows != "none"),
                "RT_MAX_DEPTH": min(int(bounces), int(features.max_bounces)),
                "RT_FRESNEL": FRESNEL_MODES[fresnel],
@@ -132,6 +137,8 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
+    check_bounces(bounces)
+    scene.check_materials()
     variant = resolve_variant(variant, backend)
     tree = bounces > 0 or schedule == "wavefront"
     step = program_for("bounces" if tree else "shadows", variant, lab)

@@ -13,6 +13,7 @@ A Camera checks itself the same way (:meth:`Camera.__post_init__`).
 from __future__ import annotations
 
 import hashlib
+import math
 import warnings
 from dataclasses import dataclass, field
 
@@ -43,6 +44,26 @@ class Material:
     reflectivity: float = 0.0                               # fraction of light reflected (mirror)
     transparency: float = 0.0                               # MTL 1-d or Tr: fraction transmitted
     ior: float = 1.0                                        # MTL Ni
+
+
+def material_problem(m: "Material") -> str | None:
+    """Why a material's numbers are not ones the shading can use, or None: every number finite, colours
+    and shininess >= 0, reflectivity and transparency shares in [0, 1] summing to at most 1, and an
+    index of refraction > 0 where the material transmits (MTL files write Ni 0 on opaque ones)."""
+    numbers = [*m.diffuse, *m.specular, m.shininess, m.reflectivity, m.transparency, m.ior]
+    try:
+        if not all(math.isfinite(float(x)) for x in numbers):
+            return "its numbers must be finite"
+    except (TypeError, ValueError):
+        return "its numbers must be numbers"
+    if min(*m.diffuse, *m.specular, m.shininess) < 0:
+        return "colours and shininess must be >= 0"
+    if not (0 <= m.reflectivity <= 1 and 0 <= m.transparency <= 1 and m.reflectivity + m.transparency <= 1 + 1e-6):
+        return (f"reflectivity ({m.reflectivity:g}) and transparency ({m.transparency:g}) are shares of the light: "
+                f"each in [0, 1], together at most 1")
+    if m.transparency > 0 and not m.ior > 0:
+        return f"a transparent material's index of refraction must be > 0, got {m.ior:g}"
+    return None
 
 
 @dataclass
@@ -198,6 +219,7 @@ class Scene:
         n_materials = len(self.materials)
         if n_materials == 0:
             raise SceneError(f"{where}: no materials; every face needs one (material_ids index into materials)")
+        self.check_materials()
         bad = np.flatnonzero((ids < 0) | (ids >= n_materials))
         if bad.size:
             raise SceneError(f"{where}: face {bad[0]} has material id {ids[bad[0]]}, but the scene has {n_materials} "
@@ -214,6 +236,14 @@ class Scene:
         self.faces = np.ascontiguousarray(faces, np.int32)
         self.material_ids = np.ascontiguousarray(ids, np.int32)
         return self
+
+    def check_materials(self) -> None:
+        """SceneError naming the first material whose numbers the shading cannot use (material_problem);
+        the renders call it again, since materials may be changed after the scene is made."""
+        for i, m in enumerate(self.materials):
+            why = material_problem(m) if isinstance(m, Material) else f"is a {type(m).__name__}, not an rtlab Material"
+            if why:
+                raise SceneError(f"scene {self.name!r}: material {i} ({getattr(m, 'name', '?')!r}): {why}")
 
     @classmethod
     def from_mesh(cls, mesh, **options) -> "Scene":
