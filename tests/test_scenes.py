@@ -610,3 +610,11 @@ def test_scene_search_dirs_name_each_folder_once(tmp_path, monkeypatch):
     assert dirs[:2] == [first, second]
     resolved = [d.resolve() for d in dirs]
     assert len(resolved) == len(set(resolved))
+
+
+def test_camera_sizes_are_whole_numbers():
+    """with_size(2.5) rendered 2 pixels wide without a word; a whole float (256.0) stays accepted."""
+    camera = load_scene("default", size=16).camera
+    assert camera.with_size(8.0).width == 8 and camera.with_size(8, 4).height == 4
+    with pytest.raises(SceneError, match="camera width must be a positive integer, got 2.5"):
+        camera.with_size(2.5)

@@ -121,8 +121,11 @@ class Camera:
                 raise SceneError(f"camera {name} must be a positive integer, got {size!r}")
 
     def with_size(self, width: int, height: int | None = None) -> "Camera":
-        return Camera(self.eye, self.target, self.up, self.fov_deg, int(width),
-                      int(height if height is not None else width))
+        """The camera at another image size: whole numbers (256 or 256.0); 2.5 is an error, not 2."""
+        def whole(x):
+            return int(x) if isinstance(x, (float, np.floating)) and float(x).is_integer() else x
+        return Camera(self.eye, self.target, self.up, self.fov_deg, whole(width),
+                      whole(height if height is not None else width))
 
     def basis(self) -> np.ndarray:
         """(4, 3) float32 rows: eye, u, v, w. A pixel (x, y) (y down) gets the direction
