@@ -155,7 +155,7 @@ def _scaled_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def float32_outward(x: np.ndarray, side: int) -> np.ndarray:
     """float64 ray bounds as float32, rounded away from the interval (``side`` -1: down, for tmin; +1:
     up, for tmax), so every t of the caller's interval (tmin, tmax) stays inside the kernels' strict
-    tmin < t < tmax: rounded to nearest, tmax = 1 + 1e-12 became 1 and dropped a hit at t = 1."""
+    tmin < t < tmax (rounded to nearest, tmax = 1 + 1e-12 would be 1.0 and drop a hit at t = 1)."""
     x = np.asarray(x, np.float64)
     with np.errstate(over="ignore"):
         f = x.astype(np.float32)
