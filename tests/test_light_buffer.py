@@ -22,7 +22,8 @@ BVH = Variant(traversal="bvh")      # a traversal whose frames take light buffer
 
 
 def _segment_blocked(o, light, tris):
-    """Brute force, float64: whether segment o -> light crosses any triangle (Moller-Trumbore, t in (0, 1))."""
+    """Brute force, float64: whether segment o -> light crosses any triangle (Moller-Trumbore, t in
+    (0, SHADOW_TMAX): the shading's segment stops short of the light)."""
     d = light - o
     v0, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     p = np.cross(d, e2)
@@ -33,7 +34,7 @@ def _segment_blocked(o, light, tris):
         q = np.cross(s, e1)
         v = (q @ d) / det
         t = (e2 * q).sum(1) / det
-    return bool(np.any((det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < 1)))
+    return bool(np.any((det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < light_buffer.SHADOW_TMAX)))
 
 
 def _distance_to_triangle(p, tri):
@@ -99,6 +100,27 @@ def test_buffer_answers_as_brute_force():
             assert got == _segment_blocked(o, light, tris), o
     assert answered[True] > 300 and answered[False] > 300, answered
     assert stats["cells_blocked_beyond"] > 0 and stats["resolution"] == light_buffer.RESOLUTIONS[0]
+
+
+def test_a_triangle_at_the_light_blocks_no_cell_whole():
+    """A wide triangle a hair from the light (within the share of a segment that shadow rays leave
+    out, RT_SHADOW_TMAX) blocks no shadow ray; the buffer must not answer "blocked beyond" for the
+    cells it covers, and answers as brute force for receivers beyond it and around it."""
+    rng = np.random.default_rng(29)
+    light = np.array([0.25, 0.5, -0.75])
+    lid = light + np.array([[-50.0, 1e-6, -50.0], [0.0, 1e-6, 80.0], [50.0, 1e-6, -50.0]])
+    others = rng.uniform(-4, 4, (200, 3))[:, None, :] + rng.normal(0, 0.5, (200, 3, 3))
+    tris = np.concatenate([lid[None], others])
+    words = build_light_buffer(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3), light)
+    receivers = np.concatenate([light + rng.uniform(-6, 6, (1500, 3)) * [1, 0, 1] + [0, 1, 0] * rng.uniform(0.1, 6, (1500, 1)),
+                                rng.uniform(-8, 8, (1500, 3))])
+    answered = {True: 0, False: 0, None: 0}
+    for o in receivers:
+        got = _buffer_blocked(words, o, light, tris)
+        answered[got] += 1
+        if got is not None:
+            assert got == _segment_blocked(o, light, tris), o
+    assert answered[False] > 1000, answered
 
 
 def test_lists_are_short_and_long_ones_go_to_the_traversal():

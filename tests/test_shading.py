@@ -410,6 +410,54 @@ def test_shadow_rays_between_facing_surfaces_are_not_occluded(backend, gap, offs
     assert not probe_shadow_rays(scene, backend, d.astype(np.float32), hits, above).any()
 
 
+@pytest.mark.parametrize("gap,offset", [(s, o) for s in SCALES for o in OFFSETS
+                                        if s >= 1e3 * np.spacing(np.float32(o + s))])
+def test_a_light_on_a_surface_is_not_shadowed_by_it(backend, gap, offset):
+    """Lights lying on the ceiling (exactly in its plane, and within a millionth of the gap above or
+    below it) reach every point of the floor: a shadow segment stops short of its light
+    (RT_SHADOW_TMAX), so the surface holding a light does not block it even where o + (light - o)
+    rounds past the light."""
+    rng = np.random.default_rng(23)
+    base = np.array([0.6, 0.8, 0.0]) * offset
+    half = 5.0 * gap
+    floor = base + np.array([[-half, 0, -half], [half, 0, -half], [0, 0, 2 * half]])
+    ceiling = base + np.array([[-half, gap, -half], [0, gap, 2 * half], [half, gap, -half]])
+    scene = _scene(np.concatenate([floor, ceiling]), np.arange(6).reshape(2, 3), Material("wall"))
+    plane = float(scene.vertices[3, 1])                 # the ceiling's plane, as stored (float32)
+    m = 2000
+    xz = rng.uniform(-0.3, 0.3, (m, 2)) * half
+    o = base + np.stack([xz[:, 0], np.full(m, 0.5 * gap), xz[:, 1]], 1)
+    d = np.stack([rng.normal(0, 0.5, m), -np.ones(m), rng.normal(0, 0.5, m)], 1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = trace(scene, o.astype(np.float32), d.astype(np.float32), backend=backend)
+    assert np.all(hits.tri == 0)
+    lxz = base[[0, 2]] + rng.uniform(-0.3, 0.3, (m, 2)) * half
+    nudge = np.where(np.arange(m) < m // 2, 0.0, gap * 1e-6 * rng.uniform(-1, 1, m))
+    lights = np.stack([lxz[:, 0], np.float32(plane + nudge), lxz[:, 1]], 1).astype(np.float32)
+    visible = probe_shadow_rays(scene, backend, d.astype(np.float32), hits, lights.astype(np.float64))
+    assert visible.all(), f"{np.count_nonzero(~visible)} of {m} lights on the ceiling shadowed by it"
+
+
+def test_a_light_in_the_floors_plane_lights_a_sphere_as_the_reference_does(backend):
+    """A lamp standing on a tilted floor, in its plane: the floor does not shadow the sphere above it,
+    in the kernels as in the float64 reference."""
+    import trimesh
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    ball = np.asarray(sphere.vertices) + [0.0, 1.3, 0.0]
+    floor = np.array([[-6.0, 0, -6], [6, 0, -6], [6, 0, 6], [-6, 0, 6]])
+    turn = np.linalg.qr(np.random.default_rng(5).normal(size=(3, 3)))[0]     # a rotation (or reflection)
+    vertices = np.concatenate([ball, floor]) @ turn.T
+    faces = np.concatenate([sphere.faces, len(ball) + np.array([[0, 2, 1], [0, 3, 2]])])
+    eye, at, up, lamp = np.array([[0.3, 2.5, 6.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], [2.7, 0.0, 1.9]]) @ turn.T
+    scene = Scene("lamp on the floor", vertices.astype(np.float32), faces.astype(np.int32),
+                  np.zeros(len(faces), np.int32), [Material("matte")],
+                  Camera(tuple(eye), tuple(at), up=tuple(up), width=SIZE, height=SIZE),
+                  [Light(tuple(lamp))], None, "procedural")
+    result = render_whitted(scene, backend, shadows="one-pass", write_hits=True)
+    ref = reference_whitted(scene, bounces=0, shadows=True)
+    _check_against_reference(result, ref, "a light in the floor's plane")
+
+
 # ---- features, defines and what they leave out ---------------------------------------------------
 
 def test_scene_features(glass):

@@ -139,3 +139,95 @@ def test_offset_follows_the_triangle_coordinates():
     p = np.array([[1e4 + 0.25, 0.25, 0.0]], np.float32)
     o = offset_ray_origins(p, position_error(corners), np.array([[0, 0, 1]], np.float32), np.array([[0, 0, -1]], np.float32))
     assert o[0, 0] == p[0, 0] and o[0, 1] == p[0, 1] and o[0, 2] < -position_error(corners)[0] * 0.99
+
+
+
+def _slivers(rng, count, length=10.0, width=0.01, offset=0.0, spacing=12.0):
+    """``count`` randomly turned length x width slivers around a point ``offset`` from the origin,
+    ``spacing`` apart so that nothing but the sliver a ray leaves lies near it; float32 corners, as
+    float64, and their float64 unit normals (exact to double rounding)."""
+    tris = []
+    for k in range(count):
+        q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        local = np.array([[0.0, 0.0, 0.0], [length, 0.0, 0.0], [0.5 * length, width, 0.0]]) - [0.5 * length, 0.0, 0.0]
+        tris.append(local @ q.T + [offset + spacing * (k - count // 2), offset, -offset])
+    v = np.asarray(tris, np.float32).astype(np.float64)
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return v, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _sliver_scene(v):
+    return rtlab.scene_from_arrays(v.reshape(-1, 3), np.arange(3 * len(v)).reshape(-1, 3), name="slivers")
+
+
+def _along(rng, tris, normal):
+    """Unit directions in each triangle's plane, along its first edge (either way) within a
+    milliradian: the way a grazing ray stays longest over a sliver."""
+    e = tris[:, 1] - tris[:, 0]
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    t = e * np.where(rng.random(len(e)) < 0.5, 1.0, -1.0)[:, None] + rng.normal(0, 1e-3, e.shape)
+    t -= (t * normal).sum(1)[:, None] * normal
+    return t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
+def _angle_to_plane(d, normal):
+    """Signed angle (float64) each direction makes with the plane of its unit normal."""
+    d = np.asarray(d, np.float64)
+    return np.arcsin((d * normal).sum(1) / np.linalg.norm(d, axis=1))
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e3])
+def test_rays_spawned_off_a_sliver_at_grazing_angles_leave_it(backend, offset):
+    """spawn_rays with directions 0.5 to 4 microradians off the plane of 10 x 0.01 slivers, above and
+    below: each origin lies on the side its direction leaves and no ray comes back. The float cross
+    product's normal is 17 microradians off on such a sliver: a third of these origins were on the
+    wrong side (rt_shade.h's geometric_normal)."""
+    rng = np.random.default_rng(41)
+    v, normal = _slivers(rng, 8, offset=offset)
+    scene = _sliver_scene(v)
+    which = np.repeat(np.arange(len(v)), 400)
+    aim = np.einsum("nk,nkc->nc", rng.dirichlet([1, 1, 1], len(which)), v[which])
+    o = (aim + 0.5 * normal[which]).astype(np.float32)
+    d = aim - o.astype(np.float64)
+    hits = trace(scene, o, (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32), backend=backend)
+    assert np.all(hits.tri == which), "the probe rays should hit the sliver they aim at"
+    t = _along(rng, v[which], normal[which])
+    dips = np.where(rng.random(len(which)) < 0.5, 1.0, -1.0) * 10.0 ** rng.uniform(np.log10(5e-7), np.log10(4e-6), len(which))
+    new_d = (np.cos(dips)[:, None] * t + np.sin(dips)[:, None] * normal[which]).astype(np.float32)
+    angle = _angle_to_plane(new_d, normal[which])
+    keep = np.abs(angle) >= 4e-7                       # rounding the direction may move it nearer the plane
+    assert keep.mean() > 0.95
+    o2, d2 = spawn_rays(scene, hits, new_d)
+    side = ((o2.astype(np.float64) - v[which, 0]) * normal[which]).sum(1)
+    wrong = keep & ((side > 0) != (angle > 0))
+    assert not wrong.any(), f"{wrong.sum()} of {keep.sum()} origins on the side their ray does not leave"
+    again = trace(scene, o2[keep], d2[keep], backend=backend)
+    assert np.all(again.tri == -1), f"{np.count_nonzero(again.tri >= 0)} of {keep.sum()} rays came back to a sliver"
+
+
+def test_reflections_off_a_sliver_at_grazing_angles_leave_it(backend):
+    """Rays meeting 10 x 0.01 slivers 0.5 to 20 microradians off their plane: the kernels' reflection
+    rays (surface_at's normal, spawn_origin's side) leave and hit nothing. With the float cross
+    product's normal, 17 microradians off, some reflected into the sliver's other side, started on
+    the wrong one and came back."""
+    from rtlab.device.probes import probe_secondary_rays
+    from rtlab.device.whitted import NO_RAY
+    rng = np.random.default_rng(43)
+    v, normal = _slivers(rng, 4, spacing=12.0)
+    scene = _sliver_scene(v)
+    scene.materials[0].reflectivity = 0.9
+    which = np.repeat(np.arange(len(v)), 1500)
+    aim = np.einsum("nk,nkc->nc", rng.dirichlet([1, 1, 1], len(which)), v[which])
+    t = _along(rng, v[which], normal[which])
+    dips = np.where(rng.random(len(which)) < 0.5, 1.0, -1.0) * 10.0 ** rng.uniform(np.log10(5e-7), np.log10(2e-5), len(which))
+    o = (aim - 10.0 * (np.cos(dips)[:, None] * t - np.sin(dips)[:, None] * normal[which])).astype(np.float32)
+    d = aim - o.astype(np.float64)
+    d32 = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    hits = trace(scene, o, d32, backend=backend)
+    grazing = (hits.tri == which) & (np.abs(_angle_to_plane(d32, normal[which])) >= 5e-7)
+    assert grazing.sum() > 0.25 * len(which)
+    _, w, _, child = probe_secondary_rays(scene, backend, d32, hits, "reflection")
+    spawned = grazing & (child.tri != NO_RAY)
+    assert spawned.sum() == grazing.sum()
+    back = spawned & (child.tri >= 0)
+    assert not back.any(), f"{back.sum()} of {spawned.sum()} reflections came back to a sliver"

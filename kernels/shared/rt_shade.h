@@ -4,6 +4,7 @@
  * same formulas. */
 #ifndef RT_SHADE_H
 #define RT_SHADE_H
+#include "rt_intersect.h"
 #include "rt_memory.h"
 #include "rt_types.h"
 
@@ -97,6 +98,24 @@ RT_FN float position_error(float3 v0, float3 v1, float3 v2)
     return rt_max(a.x, rt_max(a.y, a.z)) * (u / (1.0f - u));
 }
 
+/* The unit geometric normal of triangle (v0, v1, v2), (v1 - v0) x (v2 - v0) normalised. Where the device
+ * has doubles the cross product is plane_normal_fp64's (the float differences and their products are
+ * exact in double), rounded once to float: its direction lies within a few ulps of the plane's on a
+ * triangle of any shape. The float cross product errs by about u / sin of the triangle's sharpest
+ * corner, 1.7e-5 rad on a 10 x 0.01 sliver, and spawn_origin takes its side from this normal: a ray
+ * leaving such a sliver at a grazing angle started on the wrong side and came back into its own
+ * triangle. rtlab.spawn_rays forms the same normal (rtlab/device/spawn.py). */
+RT_FN float3 geometric_normal(float3 v0, float3 v1, float3 v2)
+{
+#if RT_HAS_FP64
+    double nx, ny, nz;
+    plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);
+    return normalize3(f3((float)nx, (float)ny, (float)nz));
+#else
+    return normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
+#endif
+}
+
 /* Surface record of a hit (hit->tri >= 0) of a ray with direction d. */
 RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
 {
@@ -106,7 +125,7 @@ RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
     float3 v2 = xyz(load_hit_vertex(tris, hit->tri, 2));
     s.p = hit_position(v0, v1, v2, hit);
     s.p_err = position_error(v0, v1, v2);
-    float3 ng = normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
+    float3 ng = geometric_normal(v0, v1, v2);
     s.front = dot3(ng, d) < 0.0f;
     s.ng = s.front ? ng : mul3(ng, -1.0f);
 #if RT_SMOOTH_NORMALS

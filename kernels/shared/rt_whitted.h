@@ -93,15 +93,21 @@ RT_FN float3 spawn_origin(const Surface *s, float3 d)
 
 /* ---- Local shading with shadow rays (§3.2.1) ------------------------------------------------- */
 
+/* Where a shadow segment ends: t = 1 is the light, and the segment stops short of it by this share of
+ * its length (pbrt-v4's ShadowEpsilon). At t = 1 exactly, o + (light_pos - o) rounds to a point up to
+ * an ulp past the light, so a surface the light lies on (a lamp on the floor) would block the light
+ * it holds, seen from everywhere. The host reads it (rtlab/reference/whitted.py, rtlab/accel/light_buffer.py). */
+#define RT_SHADOW_TMAX 0.9999f
+
 /* Shadow ray: whether the segment from surface s to the point light at light_pos is free. An
  * any-hit query with the primary rays' traversal code (the paper: "the same traversal code");
- * cast from the surface, whose spawn offset keeps it off its own triangle; t in (0, 1) spans the
- * segment, so nothing behind the light occludes. */
+ * cast from the surface, whose spawn offset keeps it off its own triangle; t in (0, RT_SHADOW_TMAX)
+ * spans the segment, so nothing behind the light, or holding it, occludes. */
 RT_FN int light_visible(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Surface *s, float3 light_pos)
 {
     /* BEGIN SOLUTION */
     float3 o = spawn_origin(s, sub3(light_pos, s->p));
-    Ray shadow = make_ray(o, sub3(light_pos, o), 0.0f, 1.0f);
+    Ray shadow = make_ray(o, sub3(light_pos, o), 0.0f, RT_SHADOW_TMAX);
     return !trace_any(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &shadow);
     /* END SOLUTION */
 }

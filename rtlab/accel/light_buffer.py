@@ -31,6 +31,8 @@ from (w_u / |w_axis| + 1) R / 2 with w = point - light.
 """
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from ..geometry import moller_trumbore_t
@@ -49,6 +51,7 @@ HEADER_WORDS = kernel_constant("RT_LB_HEADER_WORDS")
 CELL_WORDS = kernel_constant("RT_LB_CELL_WORDS")
 COUNT_BITS = kernel_constant("RT_LB_COUNT_BITS")
 TO_TRAVERSAL = kernel_constant("RT_LB_TO_TRAVERSAL")
+SHADOW_TMAX = float(np.float32(kernel_constant("RT_SHADOW_TMAX")))   # where a shadow segment ends (rt_whitted.h)
 MAX_ID_BITS = 24            # a ref keeps at least 8 bits of its distance (the float's exponent)
 
 
@@ -204,7 +207,7 @@ def _shrunk(v):
 # Why many parameters: one numba pass over the triangles takes the geometry, its order and per-triangle
 # figures made in numpy beforehand, and the build's settings, as arrays and scalars (no objects in nopython).
 @njit(cache=True)
-def _fill(vertices, faces, order, per_triangle, light, res, exact, refs, max_list):
+def _fill(vertices, faces, order, per_triangle, light, res, exact, cover_min, refs, max_list):
     n_cells = 6 * res * res
     cells = np.empty(max(per_triangle.max(), 1), np.int64)
     v = np.empty((3, 3))
@@ -216,7 +219,7 @@ def _fill(vertices, faces, order, per_triangle, light, res, exact, refs, max_lis
         m = _triangle_cells(v, light, res, cells)
         for j in range(m):
             c = cells[j]
-            if exact[i] < full[c]:
+            if exact[i] < full[c] and exact[i] >= cover_min:
                 full[c] = min(full[c], _cover_distance(inner, light, c, res) * (1.0 + FULL_MARGIN))
     counts = np.zeros(n_cells, np.int64)
     for i in order:
@@ -266,6 +269,11 @@ def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np
     distances = (exact * (1.0 - DISTANCE_MARGIN)).astype(np.float32)
     distances = np.where(distances > exact, np.nextafter(distances, np.float32(0)), distances).astype(np.float32)
     order = np.argsort(exact, kind="stable")
+    # A shadow segment stops (1 - SHADOW_TMAX) of its length short of the light, so a triangle that near
+    # the light blocks no segment there: it covers a cell ("blocked beyond") only beyond that share of the
+    # longest segment in the scene, to the farthest corner of its bounds (with room for spawn offsets)
+    corners = np.array(list(itertools.product(*zip(v.min(0), v.max(0))))) if len(v) else p[None]
+    cover_min = (1.0 - SHADOW_TMAX) * float(np.linalg.norm(corners - p, axis=1).max()) * (1.0 + 1e-2)
     id_bits = max(int(len(f) - 1).bit_length(), 1)
     if id_bits > MAX_ID_BITS:
         return None
@@ -275,7 +283,7 @@ def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np
     for res in RESOLUTIONS:
         per_triangle = _cells_per_triangle(v, f, p, res)
         if HEADER_WORDS + 6 * CELL_WORDS * res * res <= max_words or res == RESOLUTIONS[-1]:
-            words = _fill(v, f, order, per_triangle, p, res, exact, refs, MAX_LIST)
+            words = _fill(v, f, order, per_triangle, p, res, exact, cover_min, refs, MAX_LIST)
             words[1] = id_bits
             if len(words) <= max_words:
                 return words

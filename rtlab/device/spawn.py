@@ -36,7 +36,7 @@ class HitPoints:
     """Surface points of hits, as the kernels compute them for shading and spawning."""
     p: np.ndarray         # (N, 3) float32 b0 v0 + b1 v1 + b2 v2 (NaN where the ray missed)
     p_err: np.ndarray     # (N,) float32: every coordinate of p is within p_err of the exact point
-    normal: np.ndarray    # (N, 3) float32 unit geometric normal (v1 - v0) x (v2 - v0), not flipped
+    normal: np.ndarray    # (N, 3) float32 unit geometric normal (v1 - v0) x (v2 - v0), not flipped (geometric_normal)
     hit: np.ndarray       # (N,) bool
 
 
@@ -79,7 +79,10 @@ def hit_points(scene: Scene, hits) -> HitPoints:
         w = (np.float32(1) - uh) - vh
         p[hit] = (c[:, 0] * w + c[:, 1] * uh) + c[:, 2] * vh
         p_err[hit] = position_error(c)
-        ng = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]).astype(np.float32)
+        # rt_shade.h's geometric_normal: the cross product in float64 (exact differences and products of
+        # the float32 corners, one rounding), then normalised in float32
+        c64 = c.astype(np.float64)
+        ng = np.cross(c64[:, 1] - c64[:, 0], c64[:, 2] - c64[:, 0]).astype(np.float32)
         with np.errstate(divide="ignore", invalid="ignore"):
             normal[hit] = ng * (np.float32(1) / np.sqrt((ng * ng).sum(axis=1, dtype=np.float32)))[:, None]
     return HitPoints(p, p_err, normal, hit)

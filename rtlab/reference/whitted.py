@@ -32,6 +32,8 @@ from .tracer import reference_trace
 # Tree entry of a node whose ray was not spawned (-1: spawned, missed): the kernels' RT_NO_RAY, so that
 # the two trees compare entry by entry
 NO_RAY = int(kernel_constant("RT_NO_RAY"))
+# A shadow segment ends short of the light, at the kernels' float32 RT_SHADOW_TMAX (rt_whitted.h says why)
+SHADOW_TMAX = float(np.float32(kernel_constant("RT_SHADOW_TMAX")))
 # Secondary and shadow rays leave the surface exactly; hits nearer than this, relative to the
 # scene's coordinates, are the ray's own surface (float64 rounding is ~1e-16 of them).
 TMIN_REL = 1e-9
@@ -116,7 +118,7 @@ class _Tracer:
             if self.shadows and reach.any():
                 idx = np.flatnonzero(reach)
                 length = np.linalg.norm(to_light[idx], axis=1)
-                blocked = self.trace(p[idx], to_light[idx], tmin[idx] / length, 1.0).tri >= 0
+                blocked = self.trace(p[idx], to_light[idx], tmin[idx] / length, SHADOW_TMAX).tri >= 0
                 reach[idx[blocked]] = False
             l = _unit(to_light)
             h = _unit(l - d)
