@@ -548,11 +548,24 @@ def test_scene_from_arrays_in_one_call():
     (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0.0, 1.0, 2.0]]), "faces must hold integers"),
     (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]]), "needs faces"),
     (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]], material_ids=[1]), "need the materials"),
+    (dict(vertices=[[0, 0, 0], [1e39, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]), r"vertex 1 .* beyond float32's range"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[["a", "b", "c"]]), "faces must hold integers"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 1]]), "faces is not an array"),
 ])
 def test_scene_from_arrays_says_what_is_wrong(kw, message):
+    import warnings
+
     import rtlab
-    with pytest.raises(SceneError, match=message):
-        rtlab.scene_from_arrays(**kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # no numpy warning on the way (overflow in a cast)
+        with pytest.raises(SceneError, match=message):
+            rtlab.scene_from_arrays(**kw)
+
+
+@pytest.mark.parametrize("bad", [None, 3, ["bunny"]])
+def test_a_scene_that_is_neither_a_name_nor_a_path_is_one_error(bad):
+    with pytest.raises(SceneError, match="a preset name or a mesh file's path"):
+        load_scene(bad)
 
 
 def test_objects_too_small_for_their_distance_from_the_origin_warn():

@@ -11,7 +11,7 @@ import pytest
 import rtlab
 from rtlab.device.spawn import hit_points, offset_ray_origins, position_error, spawn_rays, spawn_ulps
 from rtlab.device.tracing import trace
-from rtlab.scene.model import Material, camera_rays
+from rtlab.scene.model import Camera, Light, Material, camera_rays
 
 
 def _box_on_floor(scale=1.0, offset=0.0, reflective=0.0, size=48):
@@ -231,3 +231,32 @@ def test_reflections_off_a_sliver_at_grazing_angles_leave_it(backend):
     assert spawned.sum() == grazing.sum()
     back = spawned & (child.tri >= 0)
     assert not back.any(), f"{back.sum()} of {spawned.sum()} reflections came back to a sliver"
+
+
+def test_small_and_thin_triangles_have_unit_normals_and_spawn_off_them(backend):
+    """Triangles of legs 1e-12 and 1e-20, and a unit sliver 1e-25 wide, over a floor: hit_points'
+    normal is the unit +z (the squared length of the cross product underflowed float32: NaN normals,
+    NaN origins), the spawned ray down through the triangle reaches the floor, and the kernels shade
+    the triangle as lit as a 1e-6 one (its NaN normal left it unlit)."""
+    floor = [[-5, -5, -3], [10, -5, -3], [-5, 10, -3]]
+    lit = None
+    for s, sliver in ((1e-6, False), (1e-12, False), (1e-20, False), (1e-25, True)):
+        tri = [[0, 0, 0], [1, 0, 0], [0.5, s, 0]] if sliver else [[0, 0, 0], [s, 0, 0], [0, s, 0]]
+        at = np.array([0.5, s / 2]) if sliver else np.array([0.3 * s, 0.3 * s])
+        height = 1.0 if sliver else 2 * s
+        cam = Camera((at[0], at[1], height), (at[0], at[1], 0.0), fov_deg=1e-3 if sliver else 60,
+                                 width=8, height=8)
+        scene = rtlab.scene_from_arrays(np.array(tri + floor, np.float64), np.array([[0, 1, 2], [3, 4, 5]]), camera=cam,
+                                        lights=[Light((at[0], at[1], 1.5 * height))])
+        hits = trace(scene, np.array([[at[0], at[1], height]]), np.array([[0.0, 0.0, -1.0]]), backend=backend)
+        assert hits.tri[0] == 0
+        normal = hit_points(scene, hits).normal[0]
+        assert np.allclose(np.abs(normal), [0, 0, 1], atol=1e-6), f"size {s:g}: normal {normal}"
+        o2, d2 = spawn_rays(scene, hits, np.array([[0.0, 0.0, -1.0]]))
+        assert trace(scene, o2, d2, backend=backend).tri[0] == 1, f"size {s:g}: the spawned ray should reach the floor"
+        if not sliver:
+            frame = rtlab.render(scene, backend=backend, size=8, write_hits=True)
+            assert frame.hits.tri[27] == 0
+            pixel = frame.image.reshape(-1, 3)[27]
+            lit = pixel if lit is None else lit
+            assert np.array_equal(pixel, lit), f"size {s:g}: pixel {pixel.tolist()}, lit as {lit.tolist()} at 1e-6"

@@ -404,3 +404,30 @@ def test_rays_are_fetched_only_by_the_library_where_the_device_has_warps(backend
     assert not fetches_rays(backend, bvh, "03_traversal")                  # the labs' kernels: trace_rays
     assert not fetches_rays(backend, bvh.with_(count_work=True), "library_trace")
     assert not fetches_rays(backend, bvh.with_(traversal="stack"), "library_trace")
+
+
+@pytest.mark.parametrize("variant", [None, "bvh", "bvh-wide", "bvh-packet", "stack", "bvh4"])
+def test_small_triangles_hit_where_exact_arithmetic_says(backend, variant):
+    """A right triangle of legs 1e-19 .. 1e-35 at the origin beside a unit one (no scale warning: float32
+    resolves them): its edge products underflow float32. Rays inside it hit with the exact
+    barycentrics, rays outside (1 % of a leg beyond an edge) miss. Before, 1/det overflowed (u, v inf)
+    and the double fallback underflowed again as it was rounded to float (rays through the middle
+    missed, rays outside hit)."""
+    from fractions import Fraction
+    points = np.array([[0.25, 0.25], [0.1, 0.8], [0.6, 0.35], [-0.01, 0.5], [0.5, -0.01], [0.5, 0.51], [0.6, 0.6]])
+    for s in (1e-19, 3e-20, 1e-22, 1e-23, 1e-30, 1e-35):
+        vertices = np.array([[5, 0, 0], [6, 0, 0], [5, 1, 0], [0, 0, 0], [s, 0, 0], [0, s, 0]], np.float64)
+        scene = rtlab.scene_from_arrays(vertices, np.array([[0, 1, 2], [3, 4, 5]]))
+        leg = Fraction(float(scene.vertices[4, 0]))
+        o = np.concatenate([points * s, np.ones((len(points), 1))], axis=1).astype(np.float32)
+        d = np.tile(np.float32([0.0, 0.0, -1.0]), (len(points), 1))
+        got = trace(scene, o, d, backend=backend, variant=variant)
+        assert np.array_equal(got.tri, reference_trace(scene.vertices, scene.faces, o, d, cache=False).tri)
+        for k, (x, y) in enumerate(o[:, :2].astype(np.float64)):
+            u, v = Fraction(x) / leg, Fraction(y) / leg
+            inside = u >= 0 and v >= 0 and u + v <= 1
+            where = f"legs {s:g}, ray at {points[k].tolist()} legs"
+            assert got.tri[k] == (1 if inside else -1), where
+            if inside:
+                assert got.t[k] == 1.0 and abs(got.u[k] - float(u)) < 1e-6 and abs(got.v[k] - float(v)) < 1e-6, \
+                    f"{where}: u, v = {got.u[k]}, {got.v[k]}, exact {float(u)}, {float(v)}"

@@ -210,11 +210,44 @@ float plane_t_fp64(float3 o, float3 d, float3 v0, float3 v1, float3 v2)
 }
 #endif
 
+#if RT_HAS_FP64
+/* Below this magnitude a float edge function of the watertight test may have lost its sign: it is zero
+ * (a ray through the edge, where the rounded products came out equal) or its products underflowed (a
+ * triangle whose sheared coordinates are under ~1e-19, as small triangles are anywhere). At or above
+ * 2^-100 the two products err by no more than a normal rounding each. */
+#define RT_EDGE_TINY 7.8886091e-31f
+
+/* The watertight test's edge functions whose float values (*u, *v, *w) are below RT_EDGE_TINY, recomputed
+ * in double from the same sheared coordinates: a product of two floats is exact in double, so the sign
+ * is right. Each edge function takes this path on its own value alone, and the two triangles of a shared
+ * edge compute exactly negated values, so both decide it alike: no ray slips between them. When all
+ * three are that small they are scaled by 2^200 before they are rounded back to float, so that none
+ * underflows (det = u + v + w then cannot vanish, nor 1 / det overflow): a nonzero difference of
+ * products of floats is at least 2^-298 and these are below 2^-99, so all land in float's normal range;
+ * signs and the barycentrics' ratios stay, and no division enters the traversal's code.
+ * The lane test (rt_intersect_lanes.h) calls this too. */
+RT_FN void watertight_edges_fp64(float ax2, float ay2, float bx2, float by2, float cx2, float cy2,
+                                 float *u, float *v, float *w)
+{
+    double eu = (double)cx2 * (double)by2 - (double)cy2 * (double)bx2;
+    double ev = (double)ax2 * (double)cy2 - (double)ay2 * (double)cx2;
+    double ew = (double)bx2 * (double)ay2 - (double)by2 * (double)ax2;
+    int tiny_u = rt_abs(*u) < RT_EDGE_TINY, tiny_v = rt_abs(*v) < RT_EDGE_TINY, tiny_w = rt_abs(*w) < RT_EDGE_TINY;
+    double scale = tiny_u && tiny_v && tiny_w ? 1.6069380442589903e60 : 1.0;     /* 2^200 */
+    if (tiny_u)
+        *u = (float)(eu * scale);
+    if (tiny_v)
+        *v = (float)(ev * scale);
+    if (tiny_w)
+        *w = (float)(ew * scale);
+}
+#endif
+
 /* Woop, Benthin & Wald, "Watertight Ray/Triangle Intersection", JCGT 2(1), 2013. Vertices are
  * moved to the ray origin and sheared so that the ray runs along +z; the 2D edge functions U, V, W
  * of the sheared vertices then depend on the edge's two corners only, so the triangles of a shared
  * edge compute exactly negated values and no ray slips between them. Where an edge function is
- * exactly zero it is recomputed in double (float products are exact there; RT_HAS_FP64, rt_port.h). The shear is
+ * zero or tiny it is recomputed in double (watertight_edges_fp64; RT_HAS_FP64, rt_port.h). The shear is
  * recomputed per triangle (Ray has no spare fields); the compiler hoists it out of Table 3's loop. */
 RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, float3 v2, int tri, Hit *hit)
 {
@@ -243,12 +276,10 @@ RT_FN int intersect_ray_tri_watertight(const Ray *ray, float3 v0, float3 v1, flo
     float v = diff_of_products_rn(ax2, cy2, ay2, cx2);
     float w = diff_of_products_rn(bx2, ay2, by2, ax2);
 #if RT_HAS_FP64
-    /* Fall back to double at an edge: the float products may have rounded to equal values */
-    if (u == 0.0f || v == 0.0f || w == 0.0f) {
-        u = (float)((double)cx2 * (double)by2 - (double)cy2 * (double)bx2);
-        v = (float)((double)ax2 * (double)cy2 - (double)ay2 * (double)cx2);
-        w = (float)((double)bx2 * (double)ay2 - (double)by2 * (double)ax2);
-    }
+    /* Fall back to double at an edge (the float products may have rounded to equal values) and where
+     * they may have underflowed: one compare each, as the test for zero was */
+    if (rt_abs(u) < RT_EDGE_TINY || rt_abs(v) < RT_EDGE_TINY || rt_abs(w) < RT_EDGE_TINY)
+        watertight_edges_fp64(ax2, ay2, bx2, by2, cx2, cy2, &u, &v, &w);
 #endif
     /* Without double a zero stays zero: an inclusive edge, so both neighbours hit (conservative) */
     if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f))

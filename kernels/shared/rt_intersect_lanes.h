@@ -72,7 +72,7 @@ RT_FN WatertightAxes watertight_axes(float3 d)
 
 /* Woop's edge functions on the lanes: a, b, c the triangle's vertices minus the ray origin, in the
  * ray's axis order (a = (v0 - o)[kx, ky, kz]), sheared by (sx, sy). Where an edge function is
- * exactly zero all three are recomputed in double, as the scalar test does (RT_HAS_FP64). Returns
+ * zero or tiny it is recomputed in double, by the scalar test's watertight_edges_fp64 (RT_HAS_FP64). Returns
  * the lanes whose ray passes through the triangle (u, v, w of one sign, zeros included, and
  * det = u + v + w != 0), with u, v, w and det. */
 RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef by, lanef bz, lanef cx, lanef cy,
@@ -88,11 +88,20 @@ RT_FN lanei lanes_watertight_edges(lanef ax, lanef ay, lanef az, lanef bx, lanef
     lanef e2 = lf_diff_of_products_rn(bx2, ay2, by2, ax2);
     lanef zero = lf_splat(0.0f);
 #if RT_HAS_FP64
-    lanei at_edge = li_or(li_or(lf_eq(e0, zero), lf_eq(e1, zero)), lf_eq(e2, zero));
+    lanef tiny = lf_splat(RT_EDGE_TINY);
+    lanei at_edge = li_or(li_or(lf_lt(lf_abs(e0), tiny), lf_lt(lf_abs(e1), tiny)), lf_lt(lf_abs(e2), tiny));
     if (lane_any(at_edge)) {
-        e0 = lf_select(e0, lf_diff_of_products_fp64(cx2, by2, cy2, bx2), at_edge);
-        e1 = lf_select(e1, lf_diff_of_products_fp64(ax2, cy2, ay2, cx2), at_edge);
-        e2 = lf_select(e2, lf_diff_of_products_fp64(bx2, ay2, by2, ax2), at_edge);
+        /* rare (a ray through an edge, a tiny triangle): the scalar test's fallback, a lane at a time */
+        for (int k = 0; k < RT_LANES; ++k) {
+            if (!li_get(at_edge, k))
+                continue;
+            float u0 = lf_get(e0, k), v0 = lf_get(e1, k), w0 = lf_get(e2, k);
+            watertight_edges_fp64(lf_get(ax2, k), lf_get(ay2, k), lf_get(bx2, k), lf_get(by2, k), lf_get(cx2, k),
+                                  lf_get(cy2, k), &u0, &v0, &w0);
+            lf_set(&e0, k, u0);
+            lf_set(&e1, k, v0);
+            lf_set(&e2, k, w0);
+        }
     }
 #endif
     /* one sign, zeros included; a NaN (an overflowing product) has none, so it misses */

@@ -120,14 +120,6 @@ RT_FN lanef lf_diff_of_products_rn(lanef a, lanef b, lanef c, lanef d)
     RT_LANE_LOOP r.v[k_] = diff_of_products_rn(a.v[k_], b.v[k_], c.v[k_], d.v[k_]);
     return r;
 }
-#if RT_HAS_FP64
-RT_FN lanef lf_diff_of_products_fp64(lanef a, lanef b, lanef c, lanef d)
-{
-    lanef r;
-    RT_LANE_LOOP r.v[k_] = (float)((double)a.v[k_] * (double)b.v[k_] - (double)c.v[k_] * (double)d.v[k_]);
-    return r;
-}
-#endif
 RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y, lanef z)
 {
     lanef r;
@@ -282,10 +274,6 @@ RT_FN lanef lf_diff_of_products_rn(lanef a, lanef b, lanef c, lanef d)
 #define RT_LANE_DOUBLE(a) convert_double16(a)
 #define RT_LANE_FLOAT(a) convert_float16(a)
 #endif
-RT_FN lanef lf_diff_of_products_fp64(lanef a, lanef b, lanef c, lanef d)
-{
-    return RT_LANE_FLOAT(RT_LANE_DOUBLE(a) * RT_LANE_DOUBLE(b) - RT_LANE_DOUBLE(c) * RT_LANE_DOUBLE(d));
-}
 #endif
 RT_FN lanef lf_dot3_scaled(lanef a, lanef b, lanef c, lanef s, lanef x, lanef y, lanef z)
 {

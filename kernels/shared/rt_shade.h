@@ -8,6 +8,27 @@
 #include "rt_memory.h"
 #include "rt_types.h"
 
+/* The unit geometric normal of triangle (v0, v1, v2), (v1 - v0) x (v2 - v0) normalised. Where the device
+ * has doubles the cross product is plane_normal_fp64's (the float differences and their products are
+ * exact in double), normalised in double and rounded once to float: its direction lies within a few
+ * ulps of the plane's on a triangle of any shape and size. The float cross product errs by about
+ * u / sin of the triangle's sharpest corner, 1.7e-5 rad on a 10 x 0.01 sliver, and spawn_origin takes
+ * its side from this normal: a ray leaving such a sliver at a grazing angle started on the wrong side
+ * and came back into its own triangle. Normalised in float, the squared length underflows on a
+ * triangle of legs under ~1e-11 (a NaN normal, an unlit face). rtlab.spawn_rays forms the same normal
+ * (rtlab/device/spawn.py). */
+RT_FN float3 geometric_normal(float3 v0, float3 v1, float3 v2)
+{
+#if RT_HAS_FP64
+    double nx, ny, nz;
+    plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);
+    double inv_length = 1.0 / sqrt(nx * nx + ny * ny + nz * nz);
+    return f3((float)(nx * inv_length), (float)(ny * inv_length), (float)(nz * inv_length));
+#else
+    return normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
+#endif
+}
+
 /* Surface normal at a hit: interpolated vertex normals or the flat geometric normal, turned to
  * face the incoming ray. */
 RT_FN float3 hit_normal(RT_SCENE_PARAMS, const Ray *ray, const Hit *hit)
@@ -17,12 +38,11 @@ RT_FN float3 hit_normal(RT_SCENE_PARAMS, const Ray *ray, const Hit *hit)
     float3 n = mul3(xyz(load_tri_normal(normals, hit->tri, 0)), w);
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v);
-#else
-    float3 v0 = xyz(load_hit_vertex(tris, hit->tri, 0));
-    float3 n = cross3(sub3(xyz(load_hit_vertex(tris, hit->tri, 1)), v0),
-                      sub3(xyz(load_hit_vertex(tris, hit->tri, 2)), v0));
-#endif
     n = normalize3(n);
+#else
+    float3 n = geometric_normal(xyz(load_hit_vertex(tris, hit->tri, 0)), xyz(load_hit_vertex(tris, hit->tri, 1)),
+                                xyz(load_hit_vertex(tris, hit->tri, 2)));
+#endif
     return dot3(n, ray->d) > 0.0f ? mul3(n, -1.0f) : n;
 }
 
@@ -96,24 +116,6 @@ RT_FN float position_error(float3 v0, float3 v1, float3 v2)
                   rt_max(rt_abs(v0.z), rt_max(rt_abs(v1.z), rt_abs(v2.z))));
     float u = (float)RT_SPAWN_ULPS * 5.9604645e-8f;     /* gamma(n) = n u / (1 - n u), u = 2^-24 */
     return rt_max(a.x, rt_max(a.y, a.z)) * (u / (1.0f - u));
-}
-
-/* The unit geometric normal of triangle (v0, v1, v2), (v1 - v0) x (v2 - v0) normalised. Where the device
- * has doubles the cross product is plane_normal_fp64's (the float differences and their products are
- * exact in double), rounded once to float: its direction lies within a few ulps of the plane's on a
- * triangle of any shape. The float cross product errs by about u / sin of the triangle's sharpest
- * corner, 1.7e-5 rad on a 10 x 0.01 sliver, and spawn_origin takes its side from this normal: a ray
- * leaving such a sliver at a grazing angle started on the wrong side and came back into its own
- * triangle. rtlab.spawn_rays forms the same normal (rtlab/device/spawn.py). */
-RT_FN float3 geometric_normal(float3 v0, float3 v1, float3 v2)
-{
-#if RT_HAS_FP64
-    double nx, ny, nz;
-    plane_normal_fp64(v0, v1, v2, &nx, &ny, &nz);
-    return normalize3(f3((float)nx, (float)ny, (float)nz));
-#else
-    return normalize3(cross3(sub3(v1, v0), sub3(v2, v0)));
-#endif
 }
 
 /* Surface record of a hit (hit->tri >= 0) of a ray with direction d. */

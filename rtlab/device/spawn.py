@@ -67,7 +67,8 @@ def hit_points(scene: Scene, hits) -> HitPoints:
     the triangle's unit geometric normal. A point from the barycentrics lies on the triangle up to a
     few ulps of its coordinates, wherever the ray came from; o + t d would carry t's error times the
     ray's length."""
-    tri, u, v = _hit_arrays(hits, scene.n_triangles)
+    from .tracing import require_scene
+    tri, u, v = _hit_arrays(hits, require_scene(scene).n_triangles)
     n = tri.shape[0]
     hit = tri >= 0
     p = np.full((n, 3), np.nan, np.float32)
@@ -80,11 +81,11 @@ def hit_points(scene: Scene, hits) -> HitPoints:
         p[hit] = (c[:, 0] * w + c[:, 1] * uh) + c[:, 2] * vh
         p_err[hit] = position_error(c)
         # rt_shade.h's geometric_normal: the cross product in float64 (exact differences and products of
-        # the float32 corners, one rounding), then normalised in float32
+        # the float32 corners, one rounding), normalised in float64, rounded once to float32
         c64 = c.astype(np.float64)
-        ng = np.cross(c64[:, 1] - c64[:, 0], c64[:, 2] - c64[:, 0]).astype(np.float32)
+        ng = np.cross(c64[:, 1] - c64[:, 0], c64[:, 2] - c64[:, 0])
         with np.errstate(divide="ignore", invalid="ignore"):
-            normal[hit] = ng * (np.float32(1) / np.sqrt((ng * ng).sum(axis=1, dtype=np.float32)))[:, None]
+            normal[hit] = (ng * (1.0 / np.sqrt((ng * ng).sum(axis=1)))[:, None]).astype(np.float32)
     return HitPoints(p, p_err, normal, hit)
 
 

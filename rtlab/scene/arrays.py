@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from ..errors import SceneError
-from .model import Camera, Light, Material, Scene, ScaleWarning
+from .model import Camera, Light, Material, Scene, ScaleWarning, _array
 from .scale import float32_spacing
 
 DEFAULT_MATERIAL = Material("default", diffuse=(0.8, 0.8, 0.8))
@@ -66,6 +66,11 @@ def _checked_vertices(vertices, where: str) -> np.ndarray:
     if bad.size:
         raise SceneError(f"{where}: vertex {bad[0]} is {tuple(v[bad[0]].tolist())}: vertices must be finite "
                          f"({bad.size} of {len(v)} are not)")
+    # finite here, inf once stored in float32 (the kernels' precision): its triangles would vanish unseen
+    beyond = np.flatnonzero((np.abs(v) > np.finfo(np.float32).max).any(axis=1))
+    if beyond.size:
+        raise SceneError(f"{where}: vertex {beyond[0]} is {tuple(v[beyond[0]].tolist())}: beyond float32's range "
+                         f"(3.4e38), in which vertices are stored ({beyond.size} of {len(v)} are)")
     return v
 
 
@@ -112,7 +117,7 @@ def scene_from_arrays(vertices, faces=None, *, name: str = "mesh", material: Mat
         materials = [material or DEFAULT_MATERIAL]
     elif material is not None:
         raise SceneError(f"{where}: give material (one for every face) or materials with material_ids, not both")
-    f = np.asarray(faces)
+    f = _array(faces, "i", "faces", where)
     if material_ids is None:
         material_ids = np.zeros(f.shape[0] if f.ndim >= 1 else 0, np.int32)
     collapsed = _collapsed_warning(v64, f, where)

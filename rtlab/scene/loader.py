@@ -328,6 +328,9 @@ def load_scene(name_or_path: str | os.PathLike = "default", size: int | None = N
 
     ``size`` sets the camera's width and height (default 1024). Raises SceneError with what was
     looked for and where."""
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise SceneError(f"a scene is a preset name or a mesh file's path, got {type(name_or_path).__name__} "
+                         f"{name_or_path!r}")
     text = os.fspath(name_or_path)
     key = text.strip().lower()
     if key in DEFAULT_NAMES:
