@@ -53,7 +53,8 @@ for isect in TESTS:
     loops[isect] = (r, cmp_)
     print(f"{isect:>10}: {r.median_ms:8.2f} ms  {r.mtests_per_s:8.1f} Mtests/s  "
           f"{cmp_.n_mismatch} mismatches, {cmp_.n_ties} ties, {cmp_.n_hits_ref} pixels hit")
-assert all(c.n_mismatch == 0 for _, c in loops.values())
+assert all(c.n_mismatch == 0 for _, c in loops.values()), \
+    f"wrong closest hits with {[k for k, (_, c) in loops.items() if c.n_mismatch]} (mismatches above)"
 
 # %% [markdown]
 # ## Inside the renderer

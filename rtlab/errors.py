@@ -27,3 +27,8 @@ class LabError(RtlabError):
 
 class InspectError(RtlabError):
     """Scene inspection cannot run (no OpenGL for off-screen rendering, a pixel outside the image...)."""
+
+
+class RtlabWarning(UserWarning):
+    """Something the user should know that does not stop the work (a mesh with zero-area triangles, a
+    missing material library, coordinates float32 cannot resolve); the CLI prints it as one line."""

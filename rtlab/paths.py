@@ -46,10 +46,17 @@ KERNEL_DIR = Path(settings.get("RTLAB_KERNEL_DIR") or REFERENCE_KERNEL_DIR)
 SHARED_KERNEL_DIR = KERNEL_DIR / "shared"
 LABS_DIR = DATA_ROOT / "labs"
 _kernel_dir = KERNEL_DIR
+# $RTLAB_KERNEL_DIR is checked at first use, as --kernels is when given: a mistyped export would
+# otherwise compile nothing and be summed up as a tree with every lab function written
+_kernel_dir_checked = not settings.get("RTLAB_KERNEL_DIR")
 
 
 def kernel_dir() -> Path:
     """The kernel sources this process compiles from (shared/, cuda/, opencl/)."""
+    global _kernel_dir_checked
+    if not _kernel_dir_checked:
+        _check_kernel_tree(_kernel_dir, " (from $RTLAB_KERNEL_DIR)")
+        _kernel_dir_checked = True
     return _kernel_dir
 
 
@@ -61,7 +68,7 @@ def tree_has_stubs(relpath: str) -> bool:
     """Whether file ``relpath`` of the kernel sources in use (e.g. "shared/rt_intersect_lanes.h") holds a
     stubbed solution region: a student release or a grading tree."""
     try:
-        return STUB_MARK in (_kernel_dir / relpath).read_text(errors="replace")
+        return STUB_MARK in (kernel_dir() / relpath).read_text(errors="replace")
     except OSError:
         return False
 
@@ -69,14 +76,25 @@ def tree_has_stubs(relpath: str) -> bool:
 def use_kernel_dir(root) -> Path:
     """Compile from the kernel sources at ``root`` from now on in this process (``rtlab render --kernels
     DIR``, the grader's reference); returns the tree used before."""
-    from .errors import VariantError
-    global _kernel_dir
+    global _kernel_dir, _kernel_dir_checked
     root = Path(root).expanduser().resolve()
-    if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
-        raise VariantError(f"{root} is not a folder of kernel sources: it needs shared/ and opencl/ or cuda/ "
-                           f"(a copy of the project's kernels/ folder)")
-    previous, _kernel_dir = _kernel_dir, root
+    _check_kernel_tree(root)
+    previous, _kernel_dir, _kernel_dir_checked = _kernel_dir, root, True
     return previous
+
+
+def _check_kernel_tree(root: Path, origin: str = "") -> None:
+    """A VariantError unless ``root`` holds shared/ and opencl/ or cuda/ under a UTF-8 name (the
+    compilers take include paths as UTF-8 text)."""
+    from .errors import VariantError
+    try:
+        str(root).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(root).decode("utf-8", "backslashreplace")
+        raise VariantError(f"{shown}{origin}: file names must be UTF-8 (rename the folder)") from None
+    if not (root / "shared").is_dir() or not ((root / "opencl").is_dir() or (root / "cuda").is_dir()):
+        raise VariantError(f"{root}{origin} is not a folder of kernel sources: it needs shared/ and opencl/ or cuda/ "
+                           f"(a copy of the project's kernels/ folder)")
 
 
 def include_dirs(source) -> list[Path]:
@@ -85,7 +103,7 @@ def include_dirs(source) -> list[Path]:
     grader's harness kernels live outside any tree)."""
     own = Path(source).resolve().parent.parent / "shared"
     dirs = [own] if own.is_dir() else []
-    current = _kernel_dir / "shared"
+    current = kernel_dir() / "shared"
     if current not in dirs:
         dirs.append(current)
     return dirs

@@ -31,6 +31,8 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting("RTLAB_KERNEL_DIR", "another folder of kernel sources to compile from (a student's; the grader sets it)"),
     Setting("RTLAB_KERNEL_CONSTANTS", "a JSON file of the kernels' constants, read instead of the headers (the "
                                       "grader gives its test processes one)"),
+    Setting("RTLAB_KERNEL_TIMEOUT", "seconds one launch of a student's kernels may run before the process stops "
+                                    "with a message (default 120; 0: no limit)"),
     Setting("RTLAB_CL_OPTIONS", "extra OpenCL build options, space-separated"),
     Setting("RTLAB_NVCC_OPTIONS", "extra nvcc options, space-separated"),
     Setting("RTLAB_VERBOSE", "1: show compiler output of successful builds (rtlab --verbose sets it)"),

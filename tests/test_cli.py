@@ -106,3 +106,54 @@ def test_bench_markdown_names_the_command_it_ran(tmp_path):
             "--no-check", "--md", str(md)]
     assert main(args) == 0
     assert f"Command: `rtlab {shlex.join(args)}`" in md.read_text()
+
+
+def test_render_says_what_it_did_not_check_or_use(tmp_path):
+    """Without --check the time stood alone, as if there were no error to show; Whitted options given
+    to a primary render were dropped without a word."""
+    code, out, err = run_cli("render", "--size", "8", "--repeats", "1", "--materials", "paper", "--compact",
+                             "--out", tmp_path / "r.png")
+    assert code == 0, err
+    text = " ".join(out.split())
+    assert "per launch; error: not checked (--check)" in text, text
+    assert "warning: --materials paper, --compact have no effect without --shadows or --bounces" in text, text
+    assert text.index("error: not checked") < text.index("wrote")
+
+
+def test_mesh_warnings_are_one_line_each(tmp_path):
+    """A missing MTL and zero-area triangles went to an INFO log no handler printed: now one line each."""
+    mesh = tmp_path / "some.obj"
+    mesh.write_text("mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
+    code, out, err = run_cli("render", mesh, "--size", "8", "--repeats", "1", "--out", tmp_path / "r.png")
+    assert code == 0, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert lines == [f"warning: {mesh}: material library {tmp_path / 'missing.mtl'} not found; using default materials",
+                     f"warning: {mesh}: 1 of 2 triangles have zero area (first: triangle 1); kept as they are"], err
+
+
+def test_kernel_dir_from_the_environment_is_checked_as_kernels_is(tmp_path):
+    """$RTLAB_KERNEL_DIR naming a missing or partial folder was summed up as "no template stubs, every
+    lab function is written", then a missing program; one naming a folder that is not UTF-8 crashed in
+    pyopencl's build. Now the one-line error --kernels gives."""
+    partial = tmp_path / "partial"
+    (partial / "shared").mkdir(parents=True)
+    for folder in (tmp_path / "missing", partial):
+        code, out, err = run_cli("render", "--size", "8", env={"RTLAB_KERNEL_DIR": str(folder)})
+        assert_clear_error(code, out, err, f"{folder} (from $RTLAB_KERNEL_DIR) is not a folder of kernel sources")
+        assert "every lab function is written" not in out
+    code, out, err = run_cli("render", "--size", "8", env={"RTLAB_KERNEL_DIR": os.fsdecode(b"/tmp/sub\xe9")})
+    assert_clear_error(code, out, err, "/tmp/sub\\xe9 (from $RTLAB_KERNEL_DIR): file names must be UTF-8")
+
+
+def test_whitted_renders_name_the_stubs_they_call(tmp_path):
+    """A primary render names the stubs its kernel calls; a Whitted render gave only the tree's list
+    (cut before the shadow functions). The summary comes before the scene is read (none here)."""
+    from rtlab.course.kernel_sources import copy_stubbed, reference_kernels
+    stubbed = tmp_path / "kernels"
+    copy_stubbed(reference_kernels(), stubbed, None)
+    for mode in (["--shadows", "one-pass"], ["--bounces", "1"], ["--bounces", "1", "--schedule", "wavefront"]):
+        code, out, err = run_cli("render", "no_such_scene", "--kernels", stubbed, "--traversal", "stack",
+                                 "--isect", "moller", *mode)
+        text = " ".join(out.split())
+        assert "warning: this stack/moller/" in text and "still a stub" in text, f"{mode}: {text}"
+        assert_clear_error(code, out, err, "no_such_scene")

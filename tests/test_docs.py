@@ -4,6 +4,7 @@ the docs nor the code, its comments or the command line's --help carry issue num
 old measurement log (history is CHANGELOG.md's)."""
 from __future__ import annotations
 
+import ast
 import importlib.util
 import re
 from pathlib import Path
@@ -144,3 +145,28 @@ def test_the_pattern_catches_what_it_should():
     for text in ("issue-bound", "issue slots busy", "Warp Cycles Per Issued", "the issue's goal",
                  f"tissue {n}", f"{n} issues"):
         assert not ISSUE_NUMBER.search(text), text
+
+
+# ---- the labs' READMEs, as students read them in their release -----------------------------------
+
+def test_lab_readmes_send_students_only_to_what_the_release_ships():
+    """A lab README's `python path/to/script.py` names a file the student release holds
+    (rtlab.course.release.RELEASE_ITEMS, labs/, kernels/; experiments/ stays in the course's repository),
+    and its Python blocks import names that exist."""
+    import importlib
+
+    from rtlab.course.release import RELEASE_ITEMS
+    shipped = {*RELEASE_ITEMS, "labs", "kernels"}
+    found = []
+    for readme in sorted((ROOT / "labs").glob("*/README.md")):
+        text = readme.read_text(encoding="utf-8")
+        for script in re.findall(r"\bpython3? (\S+\.py)\b", text):
+            if script.split("/")[0] not in shipped or not (ROOT / script).is_file():
+                found.append(f"{readme.parent.name}: python {script} (not in the student release)")
+        for block in re.findall(r"```python\n(.*?)```", text, re.S):
+            for node in ast.walk(ast.parse(block)):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("rtlab"):
+                    module = importlib.import_module(node.module)
+                    found += [f"{readme.parent.name}: from {node.module} import {a.name} (no such name)"
+                              for a in node.names if not hasattr(module, a.name)]
+    assert not found, "\n".join(found)

@@ -21,6 +21,15 @@ def test_one_notebook_per_lab_step():
     assert set(lab_names()) <= names, f"lab steps without a notebook: {sorted(set(lab_names()) - names)}"
 
 
+def test_every_notebook_assert_says_what_failed():
+    """A student's notebook that stops on a wrong result says which (a bare `AssertionError:` says
+    nothing): every assert carries a message."""
+    import ast
+    bare = [f"{p.name}:{node.lineno}" for p in NOTEBOOKS for node in ast.walk(ast.parse(p.read_text(encoding="utf-8")))
+            if isinstance(node, ast.Assert) and node.msg is None]
+    assert not bare, f"asserts without a message: {', '.join(bare)}"
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path):
     jupytext = pytest.importorskip("jupytext")

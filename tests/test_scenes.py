@@ -551,6 +551,10 @@ def test_scene_from_arrays_in_one_call():
     (dict(vertices=[[0, 0, 0], [1e39, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]), r"vertex 1 .* beyond float32's range"),
     (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[["a", "b", "c"]]), "faces must hold integers"),
     (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 1]]), "faces is not an array"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]], lights="light"), "lights must be a list of "
+                                                                                           "rtlab Lights, got str"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]], lights=[(1, 1, 1)]), "got tuple"),
+    (dict(vertices=[[0, 0, 0], [1, 0, 0], [2, 0, 0]], faces=[[0, 1, 2]]), "all 1 triangles have zero area"),
 ])
 def test_scene_from_arrays_says_what_is_wrong(kw, message):
     import warnings
@@ -631,3 +635,52 @@ def test_camera_sizes_are_whole_numbers():
     assert camera.with_size(8.0).width == 8 and camera.with_size(8, 4).height == 4
     with pytest.raises(SceneError, match="camera width must be a positive integer, got 2.5"):
         camera.with_size(2.5)
+
+
+@pytest.mark.parametrize("size", [2.5, 0, True, "64"])
+def test_load_scene_passes_its_size_to_the_camera_check(tmp_path, private_cache, size):
+    """load_scene(size=2.5) was truncated to 2, 0 became 1024, True 1 and "64" 64, without a word:
+    the default scene, a preset and a file all give the size to Camera's check as it came."""
+    path = _write(tmp_path, "tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    names = ["default", str(path)] + (["bunny"] if find_scene_file(PRESETS["bunny"].relpath) else [])
+    for name in names:
+        with pytest.raises(SceneError, match="camera width must be a positive integer"):
+            load_scene(name, size=size)
+    assert load_scene(str(path), size=None).camera.width == 1024
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 2 3 4\nf 0 2 3\n", "line 6: face corner '0' refers to vertex 0; OBJ "
+                                                                 "indices start at 1"),
+    ("v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 1: vertex 'v 0 0' has fewer than 3 coordinates"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1\nf 1 2 3\n", "line 3: vertex 'v 0 1' has fewer than 3 coordinates"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "line 4: cannot read face corner 'x'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "the file holds 3 vertices and 0 faces"),
+])
+def test_obj_lines_trimesh_reads_wrongly_are_named(tmp_path, private_cache, text, expected):
+    """Vertex 0 was read as another triangle without a word, a vertex of two coordinates and a bad
+    face token gave an IndexError or a ValueError without the line, a face of two corners counted the
+    vertices trimesh kept (2), not the file's (3)."""
+    path = _write(tmp_path, "bad.obj", text)
+    message = _load_error(path)
+    assert str(path) in message and expected in message, message
+
+
+def test_non_utf8_file_names_are_one_error(tmp_path, private_cache):
+    """trimesh's scene graph raised a UnicodeEncodeError on a name that is not UTF-8."""
+    path = Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9.obj"))
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(SceneError, match=r"caf\\xe9\.obj: file names must be UTF-8"):
+        load_scene(str(path))
+
+
+def test_a_mesh_file_read_anyway_warns_at_load(tmp_path, private_cache):
+    """What load_mesh_file(...).warnings held went to an INFO log nobody saw: a file loaded by its
+    path says it in a MeshWarning (the CLI prints it as one line)."""
+    from rtlab.scene.model import MeshWarning
+    path = _write(tmp_path, "two.obj", OBJ)
+    with pytest.warns(MeshWarning, match=r"material library .*two\.mtl not found"):
+        load_scene(str(path), size=16)
+    degenerate = _write(tmp_path, "some.ply", _ply([*TRIANGLE, (2, 0, 0)], [(0, 1, 2), (0, 1, 3), (2, 2, 1)]))
+    with pytest.warns(MeshWarning, match="2 of 3 triangles have zero area"):
+        load_scene(str(degenerate), size=16)

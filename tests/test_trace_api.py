@@ -252,6 +252,36 @@ def test_a_scene_given_by_name_says_how_to_load_it(backend):
         trace(RAYS_O, RAYS_O, RAYS_D, backend=backend)
 
 
+def test_the_other_api_calls_check_what_they_are_given(backend, sphere_scene):
+    """spawn_rays and hit_points on a scene name, camera_rays on a string, repeats 0 or -1 (one launch
+    was timed anyway) and width=2.5 (rows of 2) gave AttributeErrors or were taken without a word."""
+    from rtlab.errors import SceneError
+    hits = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend)
+    with pytest.raises(rtlab.RtlabError, match=r"scene must be an rtlab Scene, got str 'bunny'"):
+        rtlab.spawn_rays("bunny", hits, RAYS_D)
+    with pytest.raises(rtlab.RtlabError, match="scene must be an rtlab Scene, got str"):
+        rtlab.hit_points("bunny", hits)
+    with pytest.raises(SceneError, match="camera_rays takes an rtlab Camera .*got str"):
+        rtlab.camera_rays("cam")
+    for repeats in (0, -1, 2.5):
+        with pytest.raises(rtlab.RtlabError, match=f"repeats must be a whole number >= 1, got {repeats}"):
+            trace(sphere_scene, RAYS_O, RAYS_D, backend=backend, repeats=repeats)
+    with pytest.raises(rtlab.RtlabError, match="repeats must be a whole number >= 1, got 0"):
+        rtlab.render(sphere_scene, backend=backend, size=8, repeats=0)
+    o, d = camera_rays(sphere_scene.camera.with_size(4))
+    with pytest.raises(rtlab.RtlabError, match="width must be a whole number >= 1, got 2.5"):
+        trace(sphere_scene, o, d, backend=backend, width=2.5)
+
+
+def test_a_block_beyond_the_device_is_one_error_before_the_launch(backend, sphere_scene):
+    """A block of more work-items than the device takes ended in the launch's bare
+    INVALID_WORK_GROUP_SIZE ("this is a bug" at the command line); every launch checks it first."""
+    from rtlab.errors import BackendError
+    with pytest.raises(BackendError, match=r"block 4097x1 = 4097 work-items for render_primary: .* takes at most \d+"):
+        rtlab.render(sphere_scene, backend=backend, size=8, variant=Variant(traversal="stack", block=(4097, 1)))
+    rtlab.render(sphere_scene, backend=backend, size=8, variant=Variant(traversal="stack", block=(16, 2)))
+
+
 def test_a_variant_given_by_name_keeps_the_default_test(backend, sphere_scene):
     """variant="bvh" is the default variant with the BVH traversal (the watertight test stays);
     "bvh/moller" names both; an unknown name is a VariantError listing the names."""

@@ -83,6 +83,20 @@ def test_the_papers_variant_is_named():
     assert spec_variant(spec) == Variant("bvh", "moller", block=(32, 4))
 
 
+def test_a_field_or_define_the_variant_cannot_take_is_one_error():
+    """Variant.paper(bogus=1) was dataclasses' TypeError; a define "1 +" (trace(defines=...)) was
+    int()'s ValueError, and 1.5 was taken as 1."""
+    with pytest.raises(VariantError, match=r"Variant has no field 'bogus'; fields: traversal, intersection, .*block"):
+        Variant.paper(bogus=1)
+    with pytest.raises(VariantError, match="no field 'bogus'"):
+        GPU_DEFAULT_VARIANT.with_(bogus=1)
+    for bad in ("1 +", 1.5, None, float("inf")):
+        with pytest.raises(VariantError, match=r"define RT_FOO=.*: a -D switch's value must be an integer"):
+            build_defines(Variant.paper(), SceneFeatures(), RT_FOO=bad)
+    defines = build_defines(Variant.paper(), SceneFeatures(), RT_A="2", RT_B=True, RT_C=3.0, RT_D=np.int64(4))
+    assert [defines[k] for k in ("RT_A", "RT_B", "RT_C", "RT_D")] == [2, 1, 3, 4]
+
+
 def test_programs_by_purpose():
     v = GPU_DEFAULT_VARIANT
     assert [program_for(p, v) for p in ("trace", "loop", "shadows", "bounces")] == \

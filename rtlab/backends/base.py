@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import settings
+from ..errors import BackendError
 
 
 # nvcc's division and square root at NVIDIA OpenCL's default precision (OpenCL C allows 2.5 ulp for
@@ -64,6 +65,31 @@ class Program(ABC):
         self.backend = backend
         self.path = path
         self.defines = dict(defines)
+        self._fitting_blocks: set = set()    # (kernel, block) shapes check_block passed
+
+    def check_block(self, kernel: str, block: tuple[int, ...]) -> None:
+        """The first step of every launch (both backends' ``launch``): a block the device cannot run
+        is a BackendError naming its limit, before the launch fails with the API's bare
+        INVALID_WORK_GROUP_SIZE (or CUDA's invalid value). Once per kernel and shape."""
+        shape = (kernel, tuple(int(b) for b in block))
+        if shape in self._fitting_blocks:
+            return
+        most, sizes = self.block_limits(kernel)
+        threads = math.prod(shape[1])
+        label = "x".join(map(str, shape[1]))
+        where = f"{self.backend.device_name} ({self.backend.name})"
+        if threads > most:
+            raise BackendError(f"block {label} = {threads} work-items for {kernel}: {where} takes at most {most} "
+                               f"a block (work-group); choose a smaller --block (Variant.block)")
+        for axis, (b, limit) in enumerate(zip(shape[1], sizes)):
+            if b > limit:
+                raise BackendError(f"block {label} for {kernel}: {where} takes at most {limit} work-items along "
+                                   f"{'xyz'[axis]}; choose a smaller --block (Variant.block)")
+        self._fitting_blocks.add(shape)
+
+    @abstractmethod
+    def block_limits(self, kernel: str) -> tuple[int, tuple[int, ...]]:
+        """(most threads a block of ``kernel`` may have, most along each of x, y, z) on this device."""
 
     @abstractmethod
     def set_constant(self, name: str, array: np.ndarray) -> None:
@@ -180,13 +206,24 @@ def captured_stderr():
         return
     with tempfile.TemporaryFile() as tmp:
         os.dup2(tmp.fileno(), 2)
+        _TERMINAL_FDS.append(saved)
         try:
             yield out
         finally:
+            _TERMINAL_FDS.pop()
             os.dup2(saved, 2)
             os.close(saved)
             tmp.seek(0)
             out.append(tmp.read().decode(errors="replace"))
+
+
+_TERMINAL_FDS: list[int] = []      # descriptor 2 as it was outside captured_stderr blocks
+
+
+def terminal_stderr_fd() -> int:
+    """The descriptor of the process's own stderr, even inside a captured_stderr block (a message that
+    must reach the user as the process ends: rtlab.backends.waiting)."""
+    return _TERMINAL_FDS[0] if _TERMINAL_FDS else 2
 
 
 def report_build_log(path, defines: dict, log: str) -> None:

@@ -15,6 +15,7 @@ from ..paths import include_dirs, prepare_process
 from .base import (CUDA_PRECISION_OPTIONS, Backend, KernelResources, Program, Texture, format_build_error, read_source,
                    report_build_log, round_up)
 from .occupancy import SmLimits, cuda_occupancy
+from .waiting import wait_for_kernel
 
 
 def _pycuda():
@@ -93,7 +94,15 @@ class CudaProgram(Program):
         drv.memcpy_htod(ptr, np.frombuffer(data, np.uint8))
         self._constants[name] = data
 
+    def block_limits(self, kernel):
+        drv, d = self.backend.drv, self.backend.cuda_device
+        a = drv.device_attribute
+        most = self.function(kernel).get_attribute(drv.function_attribute.MAX_THREADS_PER_BLOCK)
+        axes = (a.MAX_BLOCK_DIM_X, a.MAX_BLOCK_DIM_Y, a.MAX_BLOCK_DIM_Z)
+        return int(most), tuple(int(d.get_attribute(x)) for x in axes)
+
     def launch(self, kernel, global_size, block, args, constants=(), shared_bytes=0):
+        self.check_block(kernel, block)
         drv = self.backend.drv
         block3 = tuple(block) + (1,) * (3 - len(block))
         grid = tuple(round_up(g, b) // b for g, b in zip(global_size, block))
@@ -111,7 +120,7 @@ class CudaProgram(Program):
         f.prepared_async_call(grid3[:2] if grid3[2] == 1 else grid3, block3, None, *args,
                               shared_size=int(shared_bytes))
         end.record()
-        end.synchronize()
+        wait_for_kernel(kernel, end.synchronize, done=end.query)
         return end.time_since(start)
 
     def prepared(self, kernel: str, args):

@@ -14,6 +14,7 @@ from ..errors import BackendError, KernelBuildError
 from ..paths import include_dirs, prepare_process
 from .base import (Backend, KernelResources, Program, Texture, captured_stderr, format_build_error, read_source,
                    report_build_log, round_up)
+from .waiting import wait_for_kernel
 
 POCL_HINT = ("no OpenCL platform found. Install PoCL, the portable CPU runtime: "
              "`apt-get install pocl-opencl-icd` (Debian/Ubuntu) or `pip install pocl-binary-distribution`")
@@ -106,8 +107,14 @@ class OpenCLProgram(Program):
             return
         self._constants[name] = (self.backend.to_device(data), data.tobytes())
 
+    def block_limits(self, kernel):
+        dev = self.backend.device
+        group = self.kernel(kernel).get_work_group_info(_cl().kernel_work_group_info.WORK_GROUP_SIZE, dev)
+        return min(int(dev.max_work_group_size), int(group)), tuple(int(s) for s in dev.max_work_item_sizes)
+
     def launch(self, kernel, global_size, block, args, constants=(), shared_bytes=0):
         _cl()    # the backend is importable (raises BackendError otherwise)
+        self.check_block(kernel, block)
         if shared_bytes:
             raise BackendError("dynamic local memory padding is CUDA only (the kernels take no __local argument)")
         gsize = tuple(round_up(g, b) for g, b in zip(global_size, block))
@@ -120,13 +127,13 @@ class OpenCLProgram(Program):
         shape = (kernel, tuple(block))
         if shape in self._launched:
             event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
-            event.wait()
+            wait_for_kernel(kernel, event.wait)
         else:
             # PoCL compiles a kernel's machine code for a work-group shape at its first launch:
             # what its compiler prints then joins the build log too
             with captured_stderr() as printed:
                 event = self.kernel(kernel)(self.backend.queue, gsize, tuple(block), *args, *const_bufs)
-                event.wait()
+                wait_for_kernel(kernel, event.wait)
             self._launched.add(shape)
             text = "".join(printed).strip()
             if text:

@@ -2,20 +2,23 @@
 bench (rtlab.benches' tables), course (lab, grade). Each registers its commands on :data:`app`.
 
 Errors the user can act on (RtlabError, and typer's usage errors: an unknown option, a value out
-of range) print one line on stderr and exit with status 2, never a traceback (``main``).
+of range) print one line on stderr and exit with status 2, never a traceback (``main``); rtlab's
+warnings (RtlabWarning) print one line "warning: ..." on stderr.
 """
 from __future__ import annotations
 
 import sys
+import warnings
 from typing import Optional
 
 import typer
 from rich.markup import escape
 
 from .. import settings
-from ..errors import RtlabError
+from ..errors import RtlabError, RtlabWarning
 from . import bench, bench_paper, course, render, scene  # noqa: F401 (each registers its commands)
 from .common import err_console
+from .supervise import run_supervised
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="rtlab: GPU ray tracing lab (Shih et al. 2009) on CUDA and OpenCL.")
@@ -49,6 +52,26 @@ def main(argv: Optional[list[str]] = None) -> int:
     RtlabError, files that cannot be read or written) are one line on stderr and a non-zero
     status, never a traceback; anything else is a bug, reported in one line too unless
     RTLAB_TRACEBACK=1 asks for the traceback."""
+    if argv is not None:              # called from Python (tests, scripts): in this process, unsupervised
+        return _run(list(argv))
+    args = sys.argv[1:]               # the program itself: a student's kernels run in a child (supervise.py)
+    return run_supervised(args, lambda: _run(args))
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """rtlab's own warnings (a mesh's zero-area triangles, a missing MTL, a scale float32 cannot
+    resolve) as one line on stderr, like its errors; any other warning as Python shows it."""
+    if issubclass(category, RtlabWarning):
+        err_console.print(f"[yellow]warning:[/] {escape(_one_line(message))}", highlight=False)
+    else:
+        _python_show_warning(message, category, filename, lineno, file, line)
+
+
+_python_show_warning = warnings.showwarning
+
+
+def _run(argv: list[str]) -> int:
+    shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         status = app(args=argv, prog_name="rtlab", standalone_mode=False)
     except RtlabError as e:
@@ -73,6 +96,8 @@ def main(argv: Optional[list[str]] = None) -> int:
         err_console.print(f"[bold red]rtlab: unexpected error[/] ({escape(type(e).__name__)}: "
                           f"{escape(_one_line(e))}); this is a bug: RTLAB_TRACEBACK=1 shows where", highlight=False)
         return 1
+    finally:
+        warnings.showwarning = shown
     return status if isinstance(status, int) else 0
 
 

@@ -113,8 +113,11 @@ def bench_rays(ctx: typer.Context,
                md: Optional[Path] = MD):
     """Rays through the trace API on the peers' benchmark views (../shared/bench): kernel time, Mrays/s,
     the error against the float64 reference, the render kernel on the same camera, the best peer."""
-    from ..benches.rays import bench_rays as bench, make_rays, rays_markdown, rays_tables, table_rows
+    from ..benches.rays import RAY_KINDS, bench_rays as bench, make_rays, rays_markdown, rays_tables, table_rows
     from ..device.kernels import Variant
+    kinds = names(kind)
+    if not kinds or any(k not in RAY_KINDS for k in kinds):     # before the first kind runs for minutes
+        raise RtlabError(f"--kind takes {', '.join(RAY_KINDS)} (comma-separated), got {kind!r}")
     bes = backend_list(backends, device)
     # parts left None are trace()'s default on each backend (bench resolves them)
     variants = [Variant(traversal=None if t == "default" else t, intersection=isect,
@@ -122,7 +125,7 @@ def bench_rays(ctx: typer.Context,
     rows = []
     for size in int_list(sizes, "--sizes"):
         for view in names(views):
-            for k in names(kind):
+            for k in kinds:
                 with console.status(f"{view} {k} rays at {size}² and their float64 reference..."):
                     batch = make_rays(view, k, size)
                 for be in bes:

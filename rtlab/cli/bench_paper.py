@@ -12,7 +12,7 @@ from ..errors import RtlabError
 from .bench import (BACKENDS, CHECK, DEVICE, MD, SIZE, VIEWS, bench_app, bench_scenes, cpu_note, repeats_option,
                     scenes_option)
 from .common import (append_markdown, backend_list, block_shape, block_shapes, command_line, console, int_list,
-                     kd_tree, load_scene, names, print_tables)
+                     kd_tree, load_scene, names, output_folder, print_tables)
 
 
 @bench_app.command("intersect")
@@ -173,10 +173,12 @@ def bench_launch(ctx: typer.Context,
     shapes = block_shapes(blocks) if blocks else list(FIG4_BLOCKS)
     cap_list = int_list(caps, "--caps")
     figs = set(names(figures))
+    if not figs or not figs <= {"4", "5"}:
+        raise RtlabError(f"--figures takes 4, 5 or 4,5 (the figures this command makes), got {figures!r}")
+    output_folder(out)
     bes = backend_list(backends, device)
     sc = load_scene(scene, size)
     kd_tree(sc)
-    out.mkdir(parents=True, exist_ok=True)
     rows = []
     for be in bes:
         with console.status(f"launch shapes on {be.name}...") as status:
@@ -218,6 +220,7 @@ def bench_paper(ctx: typer.Context,
     unknown = [s for s in chosen if s not in SECTIONS]
     if unknown:
         raise RtlabError(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    output_folder(out)
     be = get_backend(backend, device)
     scene_names = names(scenes)
     bench_scenes(scenes, "preset", size)                # every scene's kd-tree, before the timed sections

@@ -97,6 +97,31 @@ def print_tables(tables, width: int | None = None) -> None:
         out.print(rich)
 
 
+def output_folder(path: Path, option: str = "--out", given: Optional[Path] = None) -> Path:
+    """Make ``option``'s folder (for the file ``given``) before any work: a path through a file, or a
+    file, is a one-line error saying that the output path is the problem (not a bare "File exists")."""
+    blocker = next((p for p in reversed([path, *path.parents]) if p.exists() and not p.is_dir()), None)
+    if blocker is not None:
+        raise RtlabError(f"{option} {given or path}: cannot make the folder {path}: {blocker} is a file")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def image_file(path: Path, option: str = "--out") -> Path:
+    """Check ``option``'s image file before any work, and make its folder: a folder, or a name whose
+    extension Pillow cannot write (no extension, .txt), is a one-line error; found only at save
+    time it would cost the render and its figures."""
+    from PIL import Image
+    if path.is_dir():
+        raise RtlabError(f"{option} {path} is a folder; give an image file, e.g. {path / 'render.png'}")
+    formats = Image.registered_extensions()
+    if formats.get(path.suffix.lower()) not in Image.SAVE:
+        raise RtlabError(f"{option} {path}: cannot write an image of type {path.suffix or '(no extension)'!r}; "
+                         f"give a .png (or .jpg, .bmp, .tif) file")
+    output_folder(path.parent, option, path)
+    return path
+
+
 def append_markdown(md: Optional[Path], text: str) -> None:
     """Append a table's markdown to --md (a block for a fragment of docs/results/)."""
     if md:
@@ -136,11 +161,14 @@ def traversal_structure(scene, backend, variant) -> None:
         device_scene(scene, backend).features(variant)
 
 
-def use_kernels(kernels: Optional[Path], variant=None, whitted: bool = False) -> None:
+def use_kernels(kernels: Optional[Path], variant=None, step: Optional[str] = None,
+                entries: tuple[str, ...] = ("render_primary",)) -> None:
     """Switch to the kernel sources of --kernels (if given) and say which tree runs and what in it is
-    still a template stub (rtlab render --traversal ropes --check must not pass off the reference)."""
+    still a template stub (rtlab render --traversal ropes --check must not pass off the reference):
+    with ``variant``, the stubs that the ``entries`` kernels of program ``step`` (default: the primary
+    render's) call."""
     from ..course.kernel_sources import kernel_sources_summary
     from ..paths import use_kernel_dir
     if kernels is not None:
         use_kernel_dir(kernels)
-    console.print(escape(kernel_sources_summary(None if whitted else variant)), highlight=False)
+    console.print(escape(kernel_sources_summary(variant, step, entries)), highlight=False)

@@ -5,8 +5,13 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.markup import escape
 
-from .common import block_shape, console, load_scene, traversal_structure, use_kernels
+from ..errors import RtlabError
+from .common import block_shape, console, image_file, load_scene, traversal_structure, use_kernels
+
+# beside the time where --check was not given: the error column is missing, not zero
+NOT_CHECKED = "; error: not checked (--check)"
 
 
 def render(scene: str = typer.Argument("default", help="preset name, 'default' or a mesh file"),
@@ -37,12 +42,17 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
     from ..backends import get_backend
     from ..device.rendering import render as do_render, save_png
     from ..device.tracing import default_variant
-    out.parent.mkdir(parents=True, exist_ok=True)     # before the work: a bad --out fails at once
+    image_file(out)                                   # before the work: a bad --out fails at once
     be = get_backend(backend, device)
     chosen = {"traversal": traversal, "intersection": isect, "block": block_shape(block) if block else None}
     variant = default_variant(be).with_(**{k: v for k, v in chosen.items() if v is not None})
     whitted = shadows is not None or bounces is not None
-    use_kernels(kernels, variant, whitted=whitted)
+    if whitted:
+        step, entries = whitted_kernels(variant, shadows or "one-pass", bounces or 0, schedule)
+        use_kernels(kernels, variant if step else None, step, entries)
+    else:
+        warn_unused_options(materials, fresnel, compact, schedule)
+        use_kernels(kernels, variant)
     sc = load_scene(scene, size)
     traversal_structure(sc, be, variant)
     if whitted:
@@ -51,19 +61,52 @@ def render(scene: str = typer.Argument("default", help="preset name, 'default' o
         return
     with console.status(f"rendering {sc.name} {sc.camera.width}x{sc.camera.height}..."):
         result = do_render(sc, be, variant, repeats=repeats, warmup=1, write_hits=check)
-    save_png(result.image, out)
+    print_primary(sc, result, variant, check)
+    save_png(result.image, out)                       # after the figures: they are never lost to a failed write
+    console.print(f"wrote {out}")
+
+
+def print_primary(sc, result, variant, check: bool) -> None:
+    """A primary render's figures: time, Mrays/s and what the compiler gave the kernel; the error
+    against the float64 reference with --check, else that it was not checked."""
     res = result.resources
     regs = f", {res['registers']} registers" if res.get("registers") else ""
     occ = f", occupancy {res['occupancy']:.0%}" if res.get("occupancy") else ""
     console.print(f"{sc.name} {sc.camera.width}x{sc.camera.height} on {result.backend} ({result.device}), "
                   f"{variant.label()}: {result.median_ms:.2f} ms (median of {len(result.kernel_ms)}), "
-                  f"{result.mrays_per_s:.1f} Mrays/s{regs}{occ}; host {result.host_ms:.2f} ms per launch")
+                  f"{result.mrays_per_s:.1f} Mrays/s{regs}{occ}; host {result.host_ms:.2f} ms per launch"
+                  f"{'' if check else NOT_CHECKED}")
     if check:
         from ..reference.check import check_render
         with console.status("float64 reference..."):
             report = check_render(sc, result, sc.camera)
         console.print(f"error vs float64 reference: {report.summary()}")
-    console.print(f"wrote {out}")
+
+
+def warn_unused_options(materials: str, fresnel: str, compact: bool, schedule: str) -> None:
+    """One line naming the Whitted options a primary render (no --shadows, no --bounces) leaves unused."""
+    given = [f"--{name} {value}" for name, value, default in (("materials", materials, "auto"),
+             ("fresnel", fresnel, "schlick"), ("schedule", schedule, "tree")) if value != default]
+    given += ["--compact"] if compact else []
+    if given:
+        console.print(escape(f"warning: {', '.join(given)} {'has' if len(given) == 1 else 'have'} no effect "
+                             "without --shadows or --bounces (this is a primary render)"), highlight=False)
+
+
+def whitted_kernels(variant, shadows: str, bounces: int, schedule: str) -> tuple:
+    """(program, entry kernels) a Whitted render launches (rtlab.device.whitted and whitted_frames'
+    runners), whose stubs the kernel-sources summary names as it does a primary render's; (None, ())
+    where the variant has no Whitted kernels (render_whitted says why)."""
+    from ..device.variants import program_for
+    tree = bounces > 0 or schedule == "wavefront"
+    try:
+        program = program_for("bounces" if tree else "shadows", variant)
+    except RtlabError:
+        return None, ()
+    if tree:     # the wavefront's kernels too: they exist under RT_WAVEFRONT alone, which the summary does not
+        # set, and call the tree's traversal, shading and spawn functions (rt_wavefront.h)
+        return program, ("trace_primary_tree", "trace_reflection", "trace_refraction", "shade_records", "pack_frame")
+    return program, ("trace_primary_hits", "shade_hits") if shadows == "two-pass" else ("render_shadows",)
 
 
 # Why many parameters: the render command's options, passed on.
@@ -78,7 +121,6 @@ def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, ma
     with console.status(f"rendering {scene.name} {cam.width}x{cam.height}, shadows {shadows}, {bounces} bounces..."):
         result = render_whitted(scene, backend, variant, shadows=shadows, bounces=bounces, compact=compact,
                                 repeats=repeats, warmup=1, write_hits=check, fresnel=fresnel, schedule=schedule)
-    save_png(result.image, out)
     kernels = ", ".join(f"{k} {ms:.2f} ms" + (f" ({result.resources[k]['registers']} regs)"
                                               if result.resources.get(k, {}).get("registers") else "")
                         for k, ms in result.kernel_ms().items())
@@ -86,7 +128,7 @@ def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, ma
                   f"{materials}, shadows {shadows}, {bounces} bounces (depth {result.depth}, {schedule}"
                   f"{', compacted' if result.compact else ''}): "
                   f"{result.median_ms:.2f} ms a frame ({result.fps:,.1f} fps), {len(result.launches)} launches, "
-                  f"{result.rays_launched():,} rays; {kernels}")
+                  f"{result.rays_launched():,} rays; {kernels}{'' if check else NOT_CHECKED}")
     for block in (result.light_buffer or {}).get("lights", []):
         console.print(f"shadow rays through a light buffer: {block['resolution']}² cells a face, {block['mib']:.1f} MiB, "
                       f"built in {result.light_buffer['build_s']:.1f} s")
@@ -99,6 +141,7 @@ def render_whitted_frame(scene, backend, variant, shadows: str, bounces: int, ma
             ref = reference_whitted(scene, cam, bounces=result.depth, shadows=shadows != "none", fresnel=fresnel)
         tree = result.tree if result.tree is not None else {"P": result.hits.tri}
         console.print(f"error vs float64 reference: {whitted_error(result.image, tree, ref).summary()}")
+    save_png(result.image, out)
     console.print(f"wrote {out}")
     return result
 

@@ -87,10 +87,14 @@ def included_files(source: Path, include_dirs: list[Path], defines: dict, langua
 
 def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
     """An OpenCL C program's LLVM IR before any optimisation (nothing inlined away): who calls whom,
-    as the compiler reads the code (rtlab.course.lab_calls)."""
+    as the compiler reads the code (rtlab.course.lab_calls), and what each function keeps where
+    (rtlab.course.structure): local variables keep their names, and OpenCL's address spaces their
+    numbers (clang's fake map on the host target: 1 global, 2 constant, 3 local; the target, and so
+    every macro the kernels test, stays the host's)."""
     return _run_clang(source, include_dirs, defines, "opencl",
                       ["-emit-llvm", "-S", "-o", "-", "-Xclang", "-disable-llvm-passes",
-                       "-Xclang", "-finclude-default-header", "-w"])
+                       "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
+                       "-fno-discard-value-names", "-w"])
 
 
 class PreprocessorError(RuntimeError):

@@ -42,7 +42,16 @@ class TestExecution:
         return {"spec": run_spec, "step": self.config.step, "backend": self.backend, "device": self.device,
                 "mode": mode, "count_work": count_work, "memory_limit_mb": self.config.memory_limit_mb,
                 "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)],
-                "lab_calls": lab_call_rules(self.config.step)}
+                "lab_calls": lab_call_rules(self.config.step), "structure": self.structure_rules()}
+
+    def structure_rules(self) -> dict:
+        """rtlab.course.structure's allowances for this step, less the functions this submission left as
+        the template's stub (the packet's stub writes no local memory: its tests fail as a stub, and the
+        compile test still builds)."""
+        from .structure import structure_rules
+        rules = structure_rules(self.config.step)
+        stubbed = {f for fs in self.tree.stubs.values() for f in fs}
+        return {**rules, "functions": {f: r for f, r in rules["functions"].items() if f not in stubbed}}
 
     def test_dir(self, spec: TestSpec, prepared, job: dict, suffix: str = "") -> Path:
         from . import sandbox

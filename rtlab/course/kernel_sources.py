@@ -66,6 +66,25 @@ def read_text(path: Path) -> str:
     return Path(path).read_bytes().decode("latin-1")
 
 
+_stub_cache: dict = {}
+
+
+def reference_stubs(relpath: str) -> dict[str, str]:
+    """function -> its template stub statement, for the regions of this installation's ``relpath``
+    (kernels/shared/rt_memory.h...): what "still the stub" is compared with, token by token
+    (rtlab.course.regions.stubbed_functions). {} for a file the installation lacks."""
+    from .regions import template_stubs
+    path = reference_kernels().parent / relpath
+    try:
+        st = path.stat()
+    except OSError:
+        return {}
+    key = (str(path), st.st_mtime_ns, st.st_size)
+    if key not in _stub_cache:
+        _stub_cache[key] = template_stubs(read_text(path), relpath)
+    return _stub_cache[key]
+
+
 def stub_steps(text: str, relpath: str, keep_before: str | None, owners=None) -> str:
     """``text`` with the regions of every step from ``keep_before`` on stubbed (each with its own
     step's TODO line); ``keep_before=None`` stubs every region."""
@@ -187,7 +206,8 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path, deadline_
             continue
         path = tree.root / Path(rel).relative_to("kernels")
         text = read_text(path)
-        earlier = [f for f in stubbed_functions(text)
+        stubs = reference_stubs(rel)
+        earlier = [f for f in stubbed_functions(text, stubs)
                    if owners.get((rel, f), UNOWNED_STEP) < config.step]
         if not earlier:
             continue
@@ -200,7 +220,7 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path, deadline_
             continue
         theirs = data.decode("latin-1")
         try:
-            written = [f for f in earlier if f not in stubbed_functions(theirs)
+            written = [f for f in earlier if f not in stubbed_functions(theirs, stubs)
                        and f in {r.function for r in find_regions(theirs, rel)}]
         except LabError:
             continue
@@ -214,7 +234,7 @@ def build_student_tree(config: LabConfig, submission: Path, out: Path, deadline_
         if lf.path in tree.refused:
             continue
         text = read_text(tree.root / Path(lf.path).relative_to("kernels"))
-        stubs = [f for f in stubbed_functions(text) if f in lf.functions]
+        stubs = [f for f in stubbed_functions(text, reference_stubs(lf.path)) if f in lf.functions]
         if stubs:
             tree.stubs[lf.path] = stubs
     return tree
@@ -236,7 +256,8 @@ def earlier_steps_from_reference(data: bytes, relpath: str, step: str, owners, n
     reference = read_text(reference_kernels().parent / relpath)
     theirs = {r.function: r.body(text) for r in find_regions(text, relpath)}
     ours = {r.function: r.body(reference) for r in find_regions(reference, relpath)}
-    given = [f for f in earlier if f in ours and f not in stubbed_functions(reference) and ours[f] != theirs[f]]
+    given = [f for f in earlier if f in ours and f not in stubbed_functions(reference, reference_stubs(relpath))
+             and ours[f] != theirs[f]]
     if not given:
         return data
     notes.append(f"{', '.join(given)} in {relpath}: earlier steps' functions, graded with the reference's")
@@ -248,7 +269,7 @@ def tree_stubs(root: Path) -> dict[str, list[str]]:
     from .regions import stubbed_functions
     out = {}
     for rel in kernel_files(root):
-        found = stubbed_functions(read_text(Path(root) / Path(rel).relative_to("kernels")))
+        found = stubbed_functions(read_text(Path(root) / Path(rel).relative_to("kernels")), reference_stubs(rel))
         if found:
             out[rel] = found
     return out

@@ -89,7 +89,7 @@ class Limits:
     deadline_at: float      # time.monotonic() when the whole grading run must end
 
 
-def _signal_text(sig: int) -> str:
+def signal_text(sig: int) -> str:
     try:
         name = signal.Signals(sig).name
     except ValueError:
@@ -216,7 +216,7 @@ class TestProcess:
         if any(sign in tail for sign in MEMORY_SIGNS):
             return ChildResult("memory", self._memory_text(phase), data=data, seconds=seconds, programs=self.programs)
         if rc is not None and rc < 0:
-            return ChildResult("crashed", f"crashed while {phase}: {_signal_text(-rc)}", data=data, seconds=seconds,
+            return ChildResult("crashed", f"crashed while {phase}: {signal_text(-rc)}", data=data, seconds=seconds,
                                programs=self.programs)
         return ChildResult("error", f"the test process ended while {phase} (exit status {rc}):\n{tail}", data=data,
                            seconds=seconds, programs=self.programs)

@@ -119,13 +119,56 @@ def strip_regions(text: str, functions: list[str], step: str, where: str = "<sou
     return "".join(out)
 
 
-def stubbed_functions(text: str) -> list[str]:
-    """Functions whose region still holds the template's TODO stub."""
+def code_tokens(text: str) -> tuple[str, ...]:
+    """A piece of C as its tokens: comments, spaces and line breaks dropped (rtlab.course.ctokens)."""
+    from .ctokens import tokenize
+    return tuple(t.value for t in tokenize(text))
+
+
+def template_stubs(text: str, where: str = "<source>") -> dict[str, str]:
+    """function -> the statement its template region holds (stub_for): read from the reference file,
+    or a template or release (whose regions name their stub); functions whose stub cannot be told
+    (no STUB line, a return type STUBS does not know) are left out."""
+    try:
+        regions = find_regions(text, where)
+    except LabError:
+        return {}
+    out = {}
+    for r in regions:
+        try:
+            out[r.function] = stub_for(r, where)
+        except LabError:
+            continue
+    return out
+
+
+def stubbed_functions(text: str, stubs: dict[str, str] | None = None) -> list[str]:
+    """Functions whose region still holds the template's stub: its TODO line, or (the TODO comment
+    deleted, comments or spacing changed) the same tokens as the template's stub statement. ``stubs``:
+    the template's stubs by function (:func:`template_stubs` of the reference file, which knows a
+    stub even where the submitted region dropped its STUB line); without it, the region's own."""
     try:
         regions = find_regions(text)
     except LabError:
         return []
-    return [r.function for r in regions if TODO_MARK in r.body(text)]
+    out = []
+    for r in regions:
+        body = r.body(text)
+        if TODO_MARK in body:
+            out.append(r.function)
+            continue
+        stub = (stubs or {}).get(r.function)
+        if stub is None:
+            try:
+                stub = stub_for(r, "<source>")
+            except LabError:
+                continue
+        try:
+            if code_tokens(body) == code_tokens(stub):
+                out.append(r.function)
+        except TimeoutError:
+            continue
+    return out
 
 
 def splice_regions(reference: str, student: str, where: str = "<source>", functions=None) -> str:

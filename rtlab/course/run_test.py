@@ -10,8 +10,10 @@ never an expected answer). In order:
    unprivileged user.
 2. **Setup** (no submitted code runs): the kind's setup uploads the scene and compiles every kernel
    the test launches; each compile is checked first by the preprocessor's own list of what the
-   source includes (rtlab.course.deps) and by the lab-call rule on the compiler's own call graph
-   (rtlab.course.lab_calls). ``{"event": "compile"}`` before each restarts the grader's setup limit.
+   source includes (rtlab.course.deps), by the lab-call rule on the compiler's own call graph
+   (rtlab.course.lab_calls) and, on the same IR, by the structure rule (rtlab.course.structure: no
+   per-ray stack in a stackless traversal...). ``{"event": "compile"}`` before each restarts the
+   grader's setup limit.
 3. **Close the sandbox:** PoCL's binaries built (rtlab.backends.opencl), the system-call filter
    installed; ``{"event": "ready"}``. The process then waits for the grader's go: before any
    submitted code has run, the grader takes the binaries just built into the run's shared kernel
@@ -46,9 +48,11 @@ class Recorder:
     """Wraps the backend's compile: a setup heartbeat before each, the preprocessor's include check,
     and the list of programs (for the grader's note on unfinished functions)."""
 
-    def __init__(self, allowed_roots: list[Path] | None, lab_calls: dict | None = None):
+    def __init__(self, allowed_roots: list[Path] | None, lab_calls: dict | None = None,
+                 structure: dict | None = None):
         self.allowed = allowed_roots
         self.lab_calls = lab_calls          # rtlab.course.lab_calls' rules for this step (None: no rule)
+        self.structure = structure          # rtlab.course.structure's allowances for this step (None: no rule)
         self.programs: list[dict] = []
         self.closed = False
 
@@ -113,14 +117,19 @@ class Recorder:
                                    + (f"; also {', '.join(outside[1:4])}" if len(outside) > 1 else ""))
 
     def check_lab_calls(self, path: Path, defines) -> str | None:
-        """The lab-call rule (rtlab.course.lab_calls) on the program about to compile: KernelBuildError
-        when a graded function calls a lab function its reference does not; the refusal to raise after
-        the compile when clang cannot build the call graph (if the compiler fails too, its own error is
+        """The lab-call rule (rtlab.course.lab_calls) and the structure rule (rtlab.course.structure)
+        on the program about to compile, both read from one LLVM IR: KernelBuildError when a graded
+        function calls a lab function its reference does not, or keeps its state where its reference
+        does not (more private arrays; for a packet, no or far more local memory); the refusal to raise
+        after the compile when clang cannot build the IR (if the compiler fails too, its own error is
         the clearer one)."""
-        if not self.lab_calls or not self.lab_calls.get("allowed"):
+        calls = bool(self.lab_calls and self.lab_calls.get("allowed"))
+        shape = bool(self.structure and self.structure.get("functions"))
+        if not calls and not shape:
             return None
         from rtlab.course.deps import PreprocessorError, opencl_ir
         from rtlab.course.lab_calls import ir_call_graph, lab_call_problem
+        from rtlab.course.structure import structure_problem
         from rtlab.course.submission import REFUSED_MARK
         from rtlab.errors import KernelBuildError
         from rtlab.paths import include_dirs
@@ -132,7 +141,9 @@ class Recorder:
         except (PreprocessorError, RuntimeError, MemoryError) as e:
             first = str(e).strip().splitlines()[:3]
             return f"{REFUSED_MARK}{path.name}: its calls could not be read for the lab-call rule: {' '.join(first)}"
-        problem = lab_call_problem(ir_call_graph(ir), self.lab_calls)
+        graph = ir_call_graph(ir)
+        problem = (lab_call_problem(graph, self.lab_calls) if calls else None) or \
+            (structure_problem(ir, graph, self.structure, dict(defines)) if shape else None)
         if problem:
             raise KernelBuildError(f"{REFUSED_MARK}{problem}")
         return None
@@ -198,7 +209,8 @@ def test_main(test_dir: Path) -> int:
     from rtlab.paths import kernel_dir
     backend = get_backend(job["backend"], job.get("device"))
     recorder = Recorder([kernel_dir(), checks.HARNESS_DIR] if job.get("check_includes", True) else None,
-                        job.get("lab_calls") if job.get("check_includes", True) else None)
+                        job.get("lab_calls") if job.get("check_includes", True) else None,
+                        job.get("structure") if job.get("check_includes", True) else None)
     recorder.wrap(backend)
     checks.on_setup_compile(recorder.tick)
     try:

@@ -129,8 +129,20 @@ def build_defines(variant: Variant, features: SceneFeatures, trace_threads: int 
         # shared-memory ray slots: one a thread of a render block (a trace_rays block: RT_TRACE_THREADS)
         block = variant.require("block")
         defines["RT_BLOCK_THREADS"] = block[0] * block[1]
-    defines.update({k: int(v) for k, v in extra.items()})
+    defines.update({k: _define_value(k, v) for k, v in extra.items()})
     return defines
+
+
+def _define_value(name: str, value) -> int:
+    """A -D switch's value as the integer the kernels' #if reads (1, True, "1"); anything else (1.5,
+    "1 +", None) is a VariantError naming the switch, not int()'s ValueError or a silent truncation."""
+    try:
+        number = int(value)
+    except (TypeError, ValueError, OverflowError):
+        number = None
+    if number is None or (isinstance(value, float) and number != value):
+        raise VariantError(f"define {name}={value!r}: a -D switch's value must be an integer")
+    return number
 
 
 def rays_per_work_item(variant: Variant) -> int:

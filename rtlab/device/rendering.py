@@ -11,7 +11,7 @@ from ..scene.model import Scene
 from .kernels import load_program, rays_per_work_item
 from .layout import HIT_DTYPE
 from .device_scene import device_scene
-from .tracing import TraceResult, require_scene, unpack_hits
+from .tracing import TraceResult, check_count, require_scene, unpack_hits
 from .variants import Variant, program_for, resolve_variant
 
 
@@ -46,6 +46,7 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
+    repeats = check_count(repeats, "repeats")
     variant = resolve_variant(variant, backend)
     camera = scene.camera if size is None else scene.camera.with_size(size)
     ds = device_scene(scene, backend)

@@ -87,6 +87,14 @@ def require_scene(scene, what: str = "scene") -> Scene:
     raise RtlabError(f"{what} must be an rtlab Scene, got {type(scene).__name__} {_short_repr(scene)}: make one with {hint}")
 
 
+def check_count(value, name: str) -> int:
+    """``value`` (repeats, width) as a whole number >= 1, else a RtlabError: not one launch for 0, nor
+    rows of 2 for 2.5."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise RtlabError(f"{name} must be a whole number >= 1, got {value!r}")
+    return int(value)
+
+
 def _short_repr(value) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -266,6 +274,9 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     such an image. The hits are the same either way. ``lab``: run the lab steps' kernels for the variant
     (rtlab.device.variants.program_for) instead of the library's: the grader, the paper's benches."""
     scene = require_scene(scene)
+    repeats = check_count(repeats, "repeats")
+    if width is not None:
+        width = check_count(width, "width")
     implied_width = image_width_of(directions, origins) if width is None else None
     camera = image_camera_of(directions, origins)
     origins, directions = _rays_real(origins, "origins"), _rays_real(directions, "directions")

@@ -23,7 +23,7 @@ explicitly where the paper's tables and the labs need it: ``Variant.paper(...)``
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 from ..errors import VariantError
 from ..kernel_constants import kernel_constant
@@ -168,6 +168,12 @@ class Variant:
         return self.constants != "constant" or self.ray_memory == "shared"
 
     def with_(self, **kw) -> "Variant":
+        """This variant with the fields ``kw`` names replaced (Variant.paper's too): an unknown field is
+        a VariantError naming the fields, not dataclasses' TypeError."""
+        unknown = [k for k in kw if k not in VARIANT_FIELDS]
+        if unknown:
+            raise VariantError(f"Variant has no field {', '.join(map(repr, unknown))}; "
+                               f"fields: {', '.join(VARIANT_FIELDS)}")
         return replace(self, **kw)
 
     def label(self) -> str:
@@ -182,6 +188,7 @@ class Variant:
         return f"{traversal}/{self.intersection or 'default'}/{self.node_memory}/{block}{extra}"
 
 
+VARIANT_FIELDS = tuple(f.name for f in fields(Variant))
 PAPER_BLOCK = (32, 4)
 PAPER_VARIANT = Variant(traversal="stack", intersection="moller", block=PAPER_BLOCK)
 # The library's defaults (rtlab.device.tracing says why each): on a GPU the binary BVH with the

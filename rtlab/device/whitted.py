@@ -41,7 +41,7 @@ from ..scene.model import Scene
 from .kernels import SceneFeatures, load_program
 from .device_scene import device_scene
 from .light_buffers import light_buffer_args, light_buffer_defines
-from .tracing import TraceResult, require_scene
+from .tracing import TraceResult, check_count, require_scene
 from .variants import LAB_PROGRAMS, Variant, program_for, resolve_variant
 from .whitted_frames import FRAME_RUNNERS, NO_RAY, PACK_KERNELS, Launch  # noqa: F401  (NO_RAY: in a result's tree)
 
@@ -137,6 +137,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
+    repeats = check_count(repeats, "repeats")
     check_bounces(bounces)
     scene.check_materials()
     variant = resolve_variant(variant, backend)

@@ -15,6 +15,7 @@ import warnings
 import numpy as np
 
 from ..errors import SceneError
+from .mesh import degenerate_mask
 from .model import Camera, Light, Material, Scene, ScaleWarning, _array
 from .scale import float32_spacing
 
@@ -31,7 +32,7 @@ def framing_camera_for(vertices: np.ndarray, size: int = 512, fov_deg: float = F
     centre, radius = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-30)
     distance = radius / np.sin(np.radians(fov_deg) / 2.0)
     eye = centre + VIEW_DIRECTION / np.linalg.norm(VIEW_DIRECTION) * distance
-    return Camera(tuple(map(float, eye)), tuple(map(float, centre)), fov_deg=fov_deg, width=int(size), height=int(size))
+    return Camera(tuple(map(float, eye)), tuple(map(float, centre)), fov_deg=fov_deg, width=size, height=size)
 
 
 def light_above(vertices: np.ndarray) -> Light:
@@ -123,6 +124,15 @@ def scene_from_arrays(vertices, faces=None, *, name: str = "mesh", material: Mat
     collapsed = _collapsed_warning(v64, f, where)
     if collapsed:
         warnings.warn(collapsed, ScaleWarning, stacklevel=2)
-    return Scene(name, v64.astype(np.float32), f, material_ids, list(materials),
-                 camera if camera is not None else framing_camera_for(v64, size),
-                 list(lights) if lights is not None else [light_above(v64)], vertex_normals, "arrays")
+    if lights is None:
+        lights = [light_above(v64)]
+    elif isinstance(lights, (list, tuple)):        # anything else (a Light, a string) is Scene.validate's error
+        lights = list(lights)
+    scene = Scene(name, v64.astype(np.float32), f, material_ids, list(materials),
+                  camera if camera is not None else framing_camera_for(v64, size), lights, vertex_normals, "arrays")
+    # in the given coordinates, as the file loader refuses it (one lost in float32 is the ScaleWarning's)
+    degenerate = degenerate_mask(v64, scene.faces)
+    if degenerate.all():
+        raise SceneError(f"{where}: all {len(degenerate)} triangles have zero area (first: triangle 0 = "
+                         f"{scene.faces[0].tolist()}); there is nothing to hit")
+    return scene

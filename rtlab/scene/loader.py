@@ -6,7 +6,8 @@ material per OBJ ``usemtl`` group, validates what the kernels rely on, and cache
 ``load_scene`` turns a name or a path into a :class:`Scene` with camera, light and materials.
 
 Triangles of zero area are kept (the kernels must cope with them); how many there are is reported in
-``MeshData.warnings``, logged, and available for any scene through :func:`rtlab.scene.mesh.scene_warnings`.
+``MeshData.warnings`` (a MeshWarning for a file loaded by its path), and available for any scene through
+:func:`rtlab.scene.mesh.scene_warnings`.
 The geometry checks live in rtlab.scene.mesh, the OBJ/MTL details in rtlab.scene.obj, the cache in
 rtlab.scene.mesh_cache.
 """
@@ -20,6 +21,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
+from warnings import warn
 
 import numpy as np
 import trimesh
@@ -30,8 +32,8 @@ from rtlab.scene import presets as _presets
 from rtlab.scene.mesh import (MeshData, degenerate_mask, face_cross, mesh_looks_smooth, mesh_warnings,
                               smooth_vertex_normals, unit_rows)
 from rtlab.scene.mesh_cache import read_cached_mesh, write_cached_mesh
-from rtlab.scene.model import Camera, Light, Material, Scene
-from rtlab.scene.obj import first_bad_obj_face, obj_directives, obj_material_libraries, parse_mtl
+from rtlab.scene.model import Camera, Light, Material, MeshWarning, Scene
+from rtlab.scene.obj import first_bad_obj_face, obj_directives, obj_has_zero_index, obj_material_libraries, parse_mtl
 from rtlab.scene.procedural import default_scene
 
 log = logging.getLogger(__name__)
@@ -105,7 +107,8 @@ def _trimesh_scene(path: Path, obj_text: bytes | None, usemtl_names: list[str]):
     try:
         return trimesh.load_scene(**source, process=False, group_material=True)
     except Exception as exc:  # trimesh raises many kinds; the user needs the file and the reason
-        detail = first_bad_obj_face(path) if isinstance(exc, IndexError) and obj_text is not None else None
+        readable = isinstance(exc, (IndexError, ValueError)) and obj_text is not None   # a face or vertex line
+        detail = first_bad_obj_face(path) if readable else None
         if isinstance(exc, KeyError) and path.suffix.lower() == ".ply":    # trimesh's reader looks up the properties
             detail = (f"its header lacks the property {exc.args[0]!r} (a vertex needs x, y and z; a face, "
                       f"vertex_indices)")
@@ -158,8 +161,20 @@ def _scene_parts(tm_scene) -> list[_Part]:
     return parts
 
 
-def _point_count(tm_scene) -> int:
+def _point_count(tm_scene, obj_text: bytes | None) -> int:
+    """The vertices the file holds: an OBJ's ``v`` lines (trimesh keeps only those a face uses)."""
+    if obj_text is not None:
+        return len(obj_directives(obj_text, b"v"))
     return sum(len(getattr(g, "vertices", ())) for g in tm_scene.geometry.values())
+
+
+def _check_obj_corners(path: Path, obj_text: bytes | None, parts: list[_Part]) -> None:
+    """What trimesh reads without a word: a face corner of vertex 0 (taken for another vertex), vertices
+    of fewer than three coordinates (an array of two columns); the line from first_bad_obj_face."""
+    short = any(p.vertices.ndim != 2 or p.vertices.shape[1] != 3 for p in parts)
+    if short or (obj_text is not None and obj_has_zero_index(obj_text)):
+        detail = first_bad_obj_face(path) if obj_text is not None else None
+        raise SceneError(f"cannot read {path}: {detail or 'a vertex without three coordinates (x, y and z)'}")
 
 
 def _apply_mtl(path: Path, obj_text: bytes, usemtl_names: list[str], parts: list[_Part],
@@ -229,7 +244,9 @@ def _parse(path: Path, progress: Progress | None) -> tuple[MeshData, list[Path]]
     tm_scene = _trimesh_scene(path, obj_text, usemtl_names)
     parts = _scene_parts(tm_scene)
     if not parts:
-        raise SceneError(f"{path}: no triangles (the file holds {_point_count(tm_scene)} vertices and 0 faces)")
+        n_points = _point_count(tm_scene, obj_text)
+        raise SceneError(f"{path}: no triangles (the file holds {n_points} vertices and 0 faces)")
+    _check_obj_corners(path, obj_text, parts)
     warnings: list[str] = []
     if is_obj:
         dependencies = _apply_mtl(path, obj_text, usemtl_names, parts, warnings)
@@ -264,7 +281,13 @@ def _mesh_file(path: str | os.PathLike) -> Path:
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"cannot load {path}: unsupported file type {path.suffix or '(none)'!r} "
                          f"(supported: {' '.join(MESH_SUFFIXES)})")
-    return path.resolve()
+    path = path.resolve()
+    try:        # trimesh's scene graph and pyopencl's build take names as UTF-8 text
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(path).decode("utf-8", "backslashreplace")
+        raise SceneError(f"cannot load {shown}: file names must be UTF-8 (rename the file or its folder)") from None
+    return path
 
 
 def load_mesh_file(path: str | os.PathLike, progress: Progress | None = None) -> MeshData:
@@ -308,11 +331,16 @@ def load_preset(preset: _presets.Preset, size: int | None = None, progress: Prog
 
 
 def load_file_scene(path: str | os.PathLike, size: int | None = None, progress: Progress | None = None) -> Scene:
-    """Any mesh file, framed like the benchmark `far` views, lit from above and in front."""
+    """Any mesh file, framed like the benchmark `far` views, lit from above and in front. What the file
+    holds that is read anyway (MeshData.warnings: zero-area triangles, a missing MTL) is a MeshWarning.
+    A preset (load_preset) says nothing: its files' quirks are known (SOURCES.md) and would be said at
+    every load."""
     mesh = load_mesh_file(path, progress)
+    for warning in mesh.warnings:
+        warn(warning, MeshWarning, stacklevel=3)
     bounds = mesh.bounds()
-    return _scene_from_mesh(mesh, mesh.source.stem, _presets.framing_camera(bounds, size or _presets.DEFAULT_SIZE),
-                            [_presets.model_light(bounds)], "auto")
+    camera = _presets.framing_camera(bounds, _presets.DEFAULT_SIZE if size is None else size)
+    return _scene_from_mesh(mesh, mesh.source.stem, camera, [_presets.model_light(bounds)], "auto")
 
 
 def _unknown_scene_error(name: str) -> SceneError:
@@ -334,7 +362,7 @@ def load_scene(name_or_path: str | os.PathLike = "default", size: int | None = N
     text = os.fspath(name_or_path)
     key = text.strip().lower()
     if key in DEFAULT_NAMES:
-        return default_scene(size or _presets.DEFAULT_SIZE)
+        return default_scene(_presets.DEFAULT_SIZE if size is None else size)
     preset = _presets.get_preset(key)
     if preset is not None:
         return load_preset(preset, size, progress)

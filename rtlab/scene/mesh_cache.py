@@ -19,7 +19,7 @@ from rtlab.scene.model import Material
 log = logging.getLogger("rtlab.scene.loader")
 
 # Bump when parsing or the cache layout changes: old cache entries are then ignored.
-LOADER_VERSION = 1
+LOADER_VERSION = 2             # 2: an OBJ face corner of vertex 0 is refused (it was read as another vertex)
 
 
 def _file_stamp(path: Path) -> list:

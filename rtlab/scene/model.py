@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import RtlabWarning, SceneError
 
 # Largest coordinate magnitude of a scene within which float32 ray tests stay meaningful. Below the
 # low end, the products of three coordinate differences that every test forms (Moller-Trumbore's
@@ -30,9 +30,14 @@ from ..errors import SceneError
 MEANINGFUL_COORDINATES = (1e-12, 1e13)
 
 
-class ScaleWarning(UserWarning):
+class ScaleWarning(RtlabWarning):
     """A scene's coordinates lie outside MEANINGFUL_COORDINATES, or an object is too small for float32
     where it lies (rtlab.scene.scale): rays may silently miss."""
+
+
+class MeshWarning(RtlabWarning):
+    """What a mesh file holds that rtlab reads anyway: zero-area triangles, unused vertices, a missing
+    material library (rtlab.scene.loader: MeshData.warnings)."""
 
 
 @dataclass
@@ -117,7 +122,7 @@ class Camera:
             raise SceneError(f"camera fov_deg must be between 0 and 180 degrees (exclusive), got {self.fov_deg!r}")
         for name in ("width", "height"):
             size = getattr(self, name)
-            if not (isinstance(size, (int, np.integer)) and size >= 1):
+            if isinstance(size, bool) or not (isinstance(size, (int, np.integer)) and size >= 1):   # True is an int
                 raise SceneError(f"camera {name} must be a positive integer, got {size!r}")
 
     def with_size(self, width: int, height: int | None = None) -> "Camera":
@@ -235,6 +240,10 @@ class Scene:
             self.vertex_normals = np.ascontiguousarray(normals, np.float32)
         if not isinstance(self.camera, Camera):
             raise SceneError(f"{where}: camera must be an rtlab Camera, got {type(self.camera).__name__}")
+        if not isinstance(self.lights, (list, tuple)) or not all(isinstance(x, Light) for x in self.lights):
+            got = next((x for x in self.lights if not isinstance(x, Light)), None) \
+                if isinstance(self.lights, (list, tuple)) else self.lights
+            raise SceneError(f"{where}: lights must be a list of rtlab Lights, got {type(got).__name__} {got!r:.40}")
         self.vertices = np.ascontiguousarray(vertices, np.float32)
         self.faces = np.ascontiguousarray(faces, np.int32)
         self.material_ids = np.ascontiguousarray(ids, np.int32)
@@ -328,6 +337,8 @@ def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The primary rays of every pixel in float32, row-major from the top-left pixel, built with the
     same operations as camera_ray() in kernels/shared/rt_types.h (the kernels' own rays). Both are
     :class:`CameraRays`: they carry the image's width, which rtlab.trace uses to trace them in tiles."""
+    if not isinstance(camera, Camera):
+        raise SceneError(f"camera_rays takes an rtlab Camera (scene.camera), got {type(camera).__name__}")
     eye, u, v, w = camera.basis()
     x = np.arange(camera.width, dtype=np.float32)
     y = np.arange(camera.height, dtype=np.float32)

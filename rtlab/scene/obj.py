@@ -1,5 +1,6 @@
 """OBJ and MTL details trimesh does not give exactly: an MTL's materials as exact floats, an OBJ's
-material libraries and ``usemtl`` groups, and where a face refers to a vertex that does not exist."""
+material libraries and ``usemtl`` groups, and the line of a face or vertex trimesh cannot read (a
+face referring to a vertex that does not exist, or to vertex 0, which trimesh reads as another)."""
 from __future__ import annotations
 
 import re
@@ -62,20 +63,35 @@ def obj_material_libraries(path: Path, data: bytes) -> list[Path]:
     return libraries
 
 
+# A face corner whose vertex index is 0 (or -0): one regex over the file, a fraction of trimesh's parse
+_ZERO_CORNER = re.compile(rb"^[ \t]*f[ \t](?:[^\r\n]*?[ \t])?[-+]?0+(?=[/ \t\r\n]|$)", re.MULTILINE)
+
+
+def obj_has_zero_index(data: bytes) -> bool:
+    """Whether a face of the OBJ text refers to vertex 0: not an OBJ index (they start at 1, or at -1
+    from the end), which trimesh reads as another vertex without a word (first_bad_obj_face says where)."""
+    return _ZERO_CORNER.search(data) is not None
+
+
 def first_bad_obj_face(path: Path) -> str | None:
-    """Where an OBJ face refers to a vertex that does not exist (only run after a failed parse)."""
+    """Where an OBJ file has a vertex without three coordinates, or a face corner that cannot be read
+    or refers to a vertex that does not exist (only run after a failed parse, or obj_has_zero_index)."""
     n_vertices = 0
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     n_total = sum(1 for line in lines if line.startswith("v "))
     for line_no, line in enumerate(lines, 1):
         if line.startswith("v "):
             n_vertices += 1
+            if len(line.split("#", 1)[0].split()) < 4:
+                return f"line {line_no}: vertex {line.strip()!r} has fewer than 3 coordinates (x, y and z)"
         elif line.startswith("f "):
             for token in line.split()[1:]:
                 try:
                     index = int(token.split("/")[0])
                 except ValueError:
                     return f"line {line_no}: cannot read face corner {token!r}"
+                if index == 0:
+                    return f"line {line_no}: face corner {token!r} refers to vertex 0; OBJ indices start at 1"
                 resolved = index - 1 if index > 0 else n_vertices + index
                 if not 0 <= resolved < n_total:
                     return (f"line {line_no}: face refers to vertex {index}, but the file has "

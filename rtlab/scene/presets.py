@@ -106,7 +106,7 @@ def bench_camera(view: str, size: int = DEFAULT_SIZE) -> Camera:
         raise SceneError(f"unknown benchmark view {view!r}; valid views: {', '.join(bench_view_names())}")
     return Camera(eye=tuple(map(float, entry["eye"])), target=tuple(map(float, entry["target"])),
                   up=tuple(map(float, views["up"])), fov_deg=float(views["fov_deg"]),
-                  width=int(size), height=int(size))
+                  width=size, height=size)       # unconverted: Camera refuses 2.5 rather than take 2
 
 
 def _centre_and_diagonal(bounds: np.ndarray) -> tuple[np.ndarray, float]:
@@ -119,8 +119,7 @@ def framing_camera(bounds: np.ndarray, size: int = DEFAULT_SIZE, distance: float
     the construction of the benchmark ``far`` (1.6) and ``fill`` (0.9) views."""
     centre, diagonal = _centre_and_diagonal(bounds)
     eye = centre + np.array([0.0, 0.0, distance * max(diagonal, 1e-6)])
-    return Camera(eye=tuple(map(float, eye)), target=tuple(map(float, centre)),
-                  width=int(size), height=int(size))
+    return Camera(eye=tuple(map(float, eye)), target=tuple(map(float, centre)), width=size, height=size)
 
 
 def model_light(bounds: np.ndarray) -> Light:
@@ -131,7 +130,7 @@ def model_light(bounds: np.ndarray) -> Light:
 
 
 def preset_camera(preset: Preset, size: int | None = None) -> Camera:
-    return bench_camera(preset.view, size or DEFAULT_SIZE)
+    return bench_camera(preset.view, DEFAULT_SIZE if size is None else size)
 
 
 def preset_light(preset: Preset, bounds: np.ndarray) -> Light:

@@ -127,7 +127,7 @@ def default_scene(size: int = 1024) -> Scene:
         material_ids=np.concatenate([p.material_ids for p in parts]),
         materials=[Material(**vars(m)) for m in MATERIALS],
         camera=Camera(eye=(0.0, 5.0, 14.0), target=(0.0, 0.8, 0.0), fov_deg=40.0,
-                      width=int(size), height=int(size)),
+                      width=size, height=size),           # unconverted: Camera refuses 2.5 rather than take 2
         lights=[Light(position=(5.0, 9.0, 6.5))],
         vertex_normals=normals.astype(np.float32),
         source="procedural",

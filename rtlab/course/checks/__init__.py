@@ -18,7 +18,8 @@ from __future__ import annotations
 from .base import HARNESS_DIR, Kind, Outcome, Prepared, Produced, on_setup_compile, work_budget_problem, work_floor_problem
 from .camera import CameraRaysKind, check_camera_rays
 from .hits import CompileKind, IntersectLoopKind, RenderKind, TraceRaysKind
-from .memory import FetchSceneKind, NvccKind, PlacementKind
+from .memory import FetchSceneKind, PlacementKind
+from .nvcc import NvccKind
 from .ray_trees import WhittedKind
 from .speed import SpeedKind, speed_score, time_against_reference
 

@@ -10,6 +10,7 @@ from ...settings import HIT_T_REL_TOL
 from .base import (DEFAULT_WORK_BUDGET, PROBE_IMAGE, PROBE_RAYS, Kind, Outcome, Prepared, Produced, camera_scene,
                    describe_hit_errors, describe_image_error, device_scene_of, fresh_outputs, hits_agree, pixel_namer,
                    primary_step_of, ray_namer, require_hits, spec_variant, work_budget_applies, counted_produce)
+from .edges import describe_leaks, edge_ray_namer, edge_rays, leaks
 
 
 class CompileKind(Kind):
@@ -42,7 +43,10 @@ class TraceRaysKind(Kind):
     test on their own), against the float64 reference, within a work budget (the reads of the tree
     and of triangles against the reference kernel's on the same rays).
     rays = "random": origins inside and around the scene box, directions uniform on the sphere;
-    rays = "axis": axis-aligned directions, and rays lying in the kd-tree's split planes."""
+    rays = "axis": axis-aligned directions, and rays lying in the kd-tree's split planes;
+    rays = "edges": aimed at shared edges and vertices of the scene's closed meshes from afar, half
+    of them grazing (edge_rays); each must hit one of the triangles that meet there, and a miss or a
+    triangle behind is a leak however near the edge (where compare_hits' rule (b) sees a tie)."""
     name = "trace_rays"
     params = {"rays": "random", "count": 4000, "seed": 7, "tmin": 0.0, "tmax": float("inf"),
               "traversal": "", "intersection": "", "node_memory": "", "block": None}
@@ -50,11 +54,16 @@ class TraceRaysKind(Kind):
 
     def prepare(self, spec, scene):
         from ...reference import reference_trace
-        o, d = make_rays(scene, spec.params["rays"], int(spec.params["count"]), int(spec.params["seed"]))
         p = spec.params
-        ref = reference_trace(scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
+        expected = {}
+        if p["rays"] == "edges":     # the triangles around each ray's target are answers: the grader's
+            o, d, expected["fans"], ref = edge_rays(scene, int(p["count"]), int(p["seed"]), p["tmin"], p["tmax"],
+                                                    spec.name)
+        else:
+            o, d = make_rays(scene, p["rays"], int(p["count"]), int(p["seed"]))
+            ref = reference_trace(scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
         require_hits(ref, spec)
-        return Prepared({"scene": scene, "origins": o, "directions": d}, {"ref": ref})
+        return Prepared({"scene": scene, "origins": o, "directions": d}, {"ref": ref, **expected})
 
     def counts_work(self, spec):
         return work_budget_applies(spec)
@@ -91,10 +100,17 @@ class TraceRaysKind(Kind):
         scene, o, d, ref = inputs["scene"], inputs["origins"], inputs["directions"], expected["ref"]
         p = spec.params
         t, tri = out.arrays["t"], out.arrays["tri"]
+        fans = expected.get("fans")
+        where = ray_namer(o, d) if fans is None else edge_ray_namer(o, d)
         cmp_ = compare_hits(ref, tri, t, scene.vertices, scene.faces, o, d, tmin=p["tmin"], tmax=p["tmax"])
-        ok, msg = describe_hit_errors(cmp_, ref, tri, t, spec.tolerance, ray_namer(o, d), origins=o)
-        return Outcome(1.0 if ok else 0.0, msg, {"mismatches": cmp_.n_mismatch, "rays": cmp_.n_rays,
-                                                "kernel_ms": out.info.get("kernel_ms")})
+        ok, msg = describe_hit_errors(cmp_, ref, tri, t, spec.tolerance, where, origins=o)
+        data = {"mismatches": cmp_.n_mismatch, "rays": cmp_.n_rays, "kernel_ms": out.info.get("kernel_ms")}
+        if fans is not None:        # a leak is a failure even where compare_hits sees a tie
+            leaked = leaks(fans, tri)
+            data.update(leaks=int(leaked.sum()), misses=int((leaked & (tri < 0)).sum()))
+            if leaked.any():
+                ok, msg = False, describe_leaks(leaked, fans, ref, tri, t, where) + ("" if ok else "\n" + msg)
+        return Outcome(1.0 if ok else 0.0, msg, data)
 
 
 def make_rays(scene, kind: str, count: int, seed: int):
@@ -126,7 +142,7 @@ def make_rays(scene, kind: str, count: int, seed: int):
         d2[np.arange(count - half), ax] = 0.0
         o, d = np.concatenate([o1, o2]), np.concatenate([d1, d2])
     else:
-        raise RtlabError(f"unknown ray set '{kind}'; use random or axis")
+        raise RtlabError(f"unknown ray set '{kind}'; use random, axis or edges")
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     return o.astype(np.float32), d.astype(np.float32)
 

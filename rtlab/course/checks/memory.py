@@ -1,13 +1,12 @@
 """Kinds of lab step 01, memory placement (§3.1.1): the scene's buffers read back through a placement,
-a placement's render against the global variant's, and the CUDA kernel compiled offline by nvcc."""
+and a placement's render against the global variant's (the CUDA kernel compiled offline by nvcc:
+rtlab.course.checks.nvcc)."""
 from __future__ import annotations
-
-import re
 
 import numpy as np
 
 from .base import (Kind, Outcome, Prepared, Produced, device_scene_of, hit_text, pixel_namer, primary_step_of,
-                   setup_tick, spec_variant, vec_text)
+                   spec_variant, vec_text)
 from .hits import RenderKind
 
 SCENE_BUFFERS = ("nodes", "node_data", "objects", "tris", "tri_data", "normals", "tri_materials")
@@ -179,86 +178,3 @@ class PlacementKind(RenderKind):
         fraction = 1.0 if same and checked.fraction >= 1.0 else 0.0
         return Outcome(fraction, f"{variant.label()}: {diff_msg}\nagainst the float64 reference: {checked.output}",
                        data)
-
-
-class NvccKind(Kind):
-    """The step's CUDA kernel compiled offline by nvcc (graders have no NVIDIA GPU; the lab asks for
-    the API in both languages): it must compile, the listed student ``functions`` must be written (not
-    the template's stub), and the PTX must show the placement: texture fetches of int and float data
-    for node_memory = "texture", the ray stored in shared memory for ray_memory = "shared".
-    Reports registers, stack, spills and shared memory per kernel (ptxas -v). Without nvcc on the
-    grading machine the test is skipped (0 points) and says so."""
-    name = "nvcc"
-    params = {"kernel": "", "traversal": "", "intersection": "", "node_memory": "", "constants": "",
-              "ray_memory": "", "block": None, "functions": [], "arch": "sm_90"}
-
-    def prepare(self, spec, scene):
-        return Prepared({"scene": scene})
-
-    def setup(self, spec, inputs, backend, count_work=False):
-        from ...device.device_scene import scene_features, scene_kdtree
-        from ...device.kernels import build_defines, build_options, kernel_source
-        from ...backends.nvcc import nvcc_available, nvcc_ptx, nvcc_resources
-        if not nvcc_available():
-            return None
-        variant = spec_variant(spec)
-        scene = inputs["scene"]
-        defines = build_defines(variant, scene_features(scene, scene_kdtree(scene).depth + 1))
-        path = kernel_source(spec.params["kernel"] or inputs["step"], "cuda")
-        options = build_options(variant, "cuda")
-        arch = spec.params["arch"]
-        setup_tick()
-        resources = nvcc_resources(path, defines, arch=arch, block_threads=variant.block[0] * variant.block[1],
-                                   extra_options=options)
-        setup_tick()
-        ptx = nvcc_ptx(path, defines, arch=arch, extra_options=options)
-        # what the check reads of the PTX, found here: the process runs no submitted code
-        fetch = _ptx_entry(ptx, "fetch_scene")
-        return {"nvcc": True, "source": path.name,
-                "resources": {k: {"registers": r.registers, "local_bytes": r.local_bytes, "spill_bytes": r.spill_bytes,
-                                  "shared_bytes": r.shared_bytes} for k, r in resources.items()},
-                "tex_int": bool(re.search(r"\btex\.1d\.v4\.s32\.s32\b", fetch)),
-                "tex_float": bool(re.search(r"\btex\.1d\.v4\.f32\.s32\b", fetch)),
-                "st_shared": {k: bool(re.search(r"\bst\.shared\b", _ptx_entry(ptx, k)))
-                              for k in ("render_primary", "trace_rays")}}
-
-    def produce(self, state, request):
-        return Produced(info=state or {"nvcc": False})
-
-    def check(self, spec, inputs, expected, out):
-        info = out.info
-        if not info.get("nvcc"):
-            return Outcome(0.0, "skipped: nvcc (the CUDA toolkit) is not on PATH on this grading machine, so the "
-                                "CUDA kernel was not compiled; the course's grader has it", skipped=True)
-        variant = spec_variant(spec)
-        resources = info.get("resources") if isinstance(info.get("resources"), dict) else {}
-        problems = []
-        stubs = sorted(set(spec.params["functions"]) & set(expected.get("stubs", ())))
-        if stubs:
-            problems.append(f"{', '.join(stubs)} still hold{'s' if len(stubs) == 1 else ''} the template's stub")
-        if variant.node_memory == "texture":
-            for kind in ("int", "float"):
-                if not info.get(f"tex_{kind}"):
-                    problems.append(f"fetch_scene reads no {kind} data through a texture fetch (no tex.1d ... in its "
-                                    f"PTX): the fetch_*_texture functions must read with tex1Dfetch")
-        if variant.ray_memory == "shared":
-            for kernel in ("render_primary", "trace_rays"):
-                r = resources.get(kernel)
-                # the ray must be stored into the block's slots (nvcc may then forward the stored values
-                # to registers instead of loading them back: no ld.shared is required)
-                if not isinstance(r, dict) or not info.get("st_shared", {}).get(kernel) or not r.get("shared_bytes"):
-                    problems.append(f"{kernel} does not store its ray in shared memory (no st.shared in its PTX, "
-                                    f"or no shared memory): place_ray_shared must copy the ray into its slot "
-                                    f"and return the slot's address")
-        report = "; ".join(f"{k}: {r.get('registers')} registers, {r.get('local_bytes')} B stack, "
-                           f"{r.get('spill_bytes')} B spills, {r.get('shared_bytes')} B shared"
-                           for k, r in sorted(resources.items()) if k in ("render_primary", "trace_rays"))
-        head = f"{info.get('source')} ({variant.label()}) compiles with nvcc for {spec.params['arch']}: {report}"
-        if problems:
-            return Outcome(0.0, head + "\n" + "\n".join(problems), resources)
-        return Outcome(1.0, head, resources)
-
-
-def _ptx_entry(ptx: str, kernel: str) -> str:
-    m = re.search(rf"\.entry {re.escape(kernel)}\b.*?\n}}", ptx, re.S)
-    return m.group(0) if m else ""

@@ -1,0 +1,401 @@
+"""The grader's structural checks, against the audit's routes to unearned marks:
+
+* lab 03 (rtlab.course.structure): lab 00's ``traverse_kd_stack`` copied into the stackless, short-stack
+  and packet traversals got 67 / 100 (the lab-call rule reads calls, not copies). A stackless traversal
+  now keeps no more per-ray private arrays than its reference (none), the short stack no more than its
+  RT_SHORT_STACK_SIZE entries, the packet its stack in the block's local memory: read from the same
+  LLVM IR as the lab-call rule, before each compile.
+* lab 01 (rtlab.course.regions, rtlab.course.ptx, checks.nvcc.NvccKind): the template's stub with its
+  TODO comment deleted, and texture fetches of element 0, got 30 / 30 on the nvcc tests. A stub is now
+  told by its tokens; fetch_scene's PTX is followed and compared with the reference's; the shared-memory
+  ray must be stored from the kernel's ray.
+
+Each: the reference passes, legitimate other forms pass, each forged form fails with its message. Most
+checks run on the compiler's output directly (seconds); one grading per lab shows the refusals end to end.
+"""
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from rtlab.backends.nvcc import nvcc_available
+from rtlab.course import grade, load_config, write_template
+from rtlab.course.regions import find_regions, stubbed_functions, template_stubs
+from rtlab.paths import PROJECT_DIR
+
+from .test_grading import reference_files
+
+STEP03, STEP01 = "03_traversal", "01_memory"
+SHARED = "kernels/shared"
+
+
+def region_body(relpath: str, function: str) -> str:
+    text = (PROJECT_DIR / relpath).read_text()
+    [r] = [r for r in find_regions(text) if r.function == function]
+    return r.body(text)
+
+
+def replace_body(path: Path, function: str, body: str, before: str = "") -> None:
+    """``function``'s solution region in ``path`` holding ``body``; ``before`` put ahead of its signature."""
+    text = path.read_text()
+    [r] = [r for r in find_regions(text) if r.function == function]
+    text = text[:r.body_start] + body.rstrip("\n") + "\n" + text[r.body_end:]
+    if before:
+        sig = re.search(rf"^RT_FN [^\n]*\b{function}\(", text, re.M)
+        text = text[:sig.start()] + before + text[sig.start():]
+    path.write_text(text)
+
+
+# --------------------------------------------------------------------------------------------------
+# lab 03: no per-ray stack where the reference has none
+# --------------------------------------------------------------------------------------------------
+COPIED_STACK = region_body(f"{SHARED}/rt_kdtree.h", "traverse_kd_stack")      # the audit's copy, verbatim
+FILES = {"traverse_kd_restart": "rt_kd_restart.h", "traverse_kd_shortstack": "rt_kd_shortstack.h",
+         "traverse_kd_ropes": "rt_kd_ropes.h", "traverse_kd_packet": "rt_packet.h"}
+TRAVERSAL = {"traverse_kd_restart": "restart", "traverse_kd_shortstack": "shortstack",
+             "traverse_kd_ropes": "ropes", "traverse_kd_packet": "packet"}
+
+
+def restart_with_scalars() -> str:
+    """A legitimate kd-restart written otherwise: more scalar locals and a per-axis array (12 B)."""
+    body = region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart")
+    head = ("    float axis_t[3] = {0.0f, 0.0f, 0.0f};     /* per-axis scratch, no stack */\n"
+            "    int restarts = 0;\n")
+    body = body.replace("            intersect_leaf(", "            ++restarts;\n            axis_t[restarts % 3] = seg.tmax;\n"
+                                                      "            intersect_leaf(", 1)
+    assert "++restarts" in body
+    return head + body
+
+
+def shortstack_in_parallel_arrays() -> str:
+    """A legitimate short stack: its entries in two arrays of RT_SHORT_STACK_SIZE (node, segment)."""
+    body = region_body(f"{SHARED}/rt_kd_shortstack.h", "traverse_kd_shortstack")
+    body = body.replace("KdShortStackEntry stack[RT_SHORT_STACK_SIZE];",
+                        "int stack_node[RT_SHORT_STACK_SIZE];\n    KdSegment stack_seg[RT_SHORT_STACK_SIZE];")
+    body = body.replace("stack[top].node", "stack_node[top]").replace("stack[top].seg", "stack_seg[top]")
+    body = body.replace("ring: stack[top] is", "ring: entry top is")
+    assert "stack[" not in body
+    return body
+
+
+# (function, body, text before the function, an edit of the file) -> the refusal, or None for a pass
+FORMS = {
+    "reference": ("traverse_kd_shortstack", None, "", None, None),
+    "restart with scalars": ("traverse_kd_restart", restart_with_scalars(), "", None, None),
+    "short stack in two arrays": ("traverse_kd_shortstack", shortstack_in_parallel_arrays(), "", None, None),
+    "copied stack as restart": (
+        "traverse_kd_restart", COPIED_STACK, "", None,
+        r"^traverse_kd_restart keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B, where the "
+        r"reference traverse_kd_restart keeps none \(0 B\): kd-restart is stackless"),
+    "copied stack as short stack": (
+        "traverse_kd_shortstack", COPIED_STACK, "", None,
+        r"^traverse_kd_shortstack keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B, where the "
+        r"reference traverse_kd_shortstack keeps \d+ B \(its stack, \[4 x KdShortStackEntry\]\): a short stack "
+        r"holds at most RT_SHORT_STACK_SIZE = 4 entries"),
+    "copied stack as ropes": (
+        "traverse_kd_ropes", COPIED_STACK, "", None,
+        r"^traverse_kd_ropes keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B, where the "
+        r"reference traverse_kd_ropes keeps none \(0 B\): the ropes traversal is stackless"),
+    "copied stack as packet": (
+        "traverse_kd_packet", "    if (!valid)\n        return;\n" + COPIED_STACK, "", None,
+        r"^traverse_kd_packet keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B, where the "
+        r"reference traverse_kd_packet keeps none \(0 B\): a packet keeps ONE stack for all its rays in the "
+        r"block's local memory"),
+    "stack in a helper": (
+        "traverse_kd_restart", "    kd_walk_mine(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit);\n",
+        "RT_FN void kd_walk_mine(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, const Ray *ray, Hit *hit,\n"
+        "                        int any_hit)\n{\n" + COPIED_STACK + "}\n\n", None,
+        r"^traverse_kd_restart keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B \(in "
+        r"kd_walk_mine, which traverse_kd_restart calls\), where the reference traverse_kd_restart keeps none"),
+    "stack in a struct": (
+        "traverse_kd_ropes", "    struct { int sp; KdStackEntry e[RT_STACK_SIZE]; } st;\n    st.sp = 0;\n    (void)st;\n",
+        "", None,
+        r"^traverse_kd_ropes keeps a per-ray private array st, a struct holding \[\d+ x KdStackEntry\] = \d+ B"),
+    "stack in a wide vector": (
+        "traverse_kd_restart", "    uint16 trail = (uint16)(0u);\n    trail.s3 = 1u;\n    (void)trail;\n"
+        + region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart"), "", None,
+        r"^traverse_kd_restart keeps a per-ray private array trail, <16 x i32> = 64 B"),
+    "packet walking ray by ray": (
+        "traverse_kd_packet", "    if (!valid)\n        return;\n"
+        + region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart"), '#include "rt_kd_restart.h"\n\n', None,
+        r"^traverse_kd_packet writes nothing to the block's local memory, where the reference traverse_kd_packet "
+        r"keeps the packet's stack"),
+    "packet with a stack per ray in local memory": (
+        "traverse_kd_packet", None, "",
+        lambda t: t.replace("    int stack_node[RT_STACK_SIZE];\n",
+                            "    int stack_node[RT_STACK_SIZE];\n    int lane_stack[RT_TRACE_THREADS * RT_STACK_SIZE];\n"),
+        r"^traverse_kd_packet's program holds \d+ B of local memory in \w+\.packet, more than 2x the reference's "
+        r"\d+ B \(a stack for each ray of the block"),
+}
+
+
+def program_problem(sub: Path, tmp: Path, traversal: str, stack_size: int = 21, short: int | None = None):
+    """What the test process's check (lab-call rule, then structure rule) says of the submission's lab 03
+    program for ``traversal``, compiled as a test compiles it."""
+    from rtlab.course.deps import opencl_ir
+    from rtlab.course.kernel_sources import build_student_tree
+    from rtlab.course.lab_calls import ir_call_graph, lab_call_problem, lab_call_rules
+    from rtlab.course.structure import structure_problem, structure_rules
+    from rtlab.device.kernels import SceneFeatures, build_defines
+    from rtlab.device.variants import Variant
+    tree = build_student_tree(load_config(STEP03), sub, tmp)
+    assert not tree.refused, tree.refused
+    src = tree.root / "opencl" / f"{STEP03}.cl"
+    variant = Variant.paper(traversal=traversal) if short is None else Variant.paper(traversal=traversal,
+                                                                                      short_stack=short)
+    defines = {**build_defines(variant, SceneFeatures()), "RT_STACK_SIZE": stack_size}
+    ir = opencl_ir(src, [tree.root / "shared", src.parent], defines)
+    graph = ir_call_graph(ir)
+    return lab_call_problem(graph, lab_call_rules(STEP03)) or \
+        structure_problem(ir, graph, structure_rules(STEP03), defines)
+
+
+def test_structure_allowances_come_from_the_reference():
+    """The reference's own IR sets each allowance: kd-restart, ropes and packet hold no private array;
+    the short stack's grows with RT_SHORT_STACK_SIZE (its entries) and not with RT_STACK_SIZE; the
+    packet writes local memory, whose size grows with RT_STACK_SIZE (its one stack)."""
+    from rtlab.course.structure import structure_rules
+    rules = structure_rules(STEP03)["functions"]
+    assert set(rules) == set(FILES)
+    for f in ("traverse_kd_restart", "traverse_kd_ropes", "traverse_kd_packet"):
+        assert rules[f]["private"] == [0, 0, 0] and rules[f]["largest"] is None, (f, rules[f])
+    a, b, c = rules["traverse_kd_shortstack"]["private"]
+    assert a == 0 and b == 0 and c > 0, rules["traverse_kd_shortstack"]
+    assert rules["traverse_kd_shortstack"]["largest"][:2] == ["stack", "[4 x KdShortStackEntry]"]
+    assert rules["traverse_kd_packet"]["local_stores"] and rules["traverse_kd_packet"]["local"][1] > 0
+    assert not any(rules[f]["local_stores"] for f in rules if f != "traverse_kd_packet")
+    assert structure_rules("00_primary")["functions"] == {}      # lab 00's stack traversal: no rule
+
+
+@pytest.mark.parametrize("traversal", ["restart", "shortstack", "ropes", "packet", "bvh"])
+@pytest.mark.parametrize("stack_size, short", [(8, 2), (21, 4), (64, 8)])
+def test_reference_traversals_pass_at_any_depth(traversal, stack_size, short, tmp_path):
+    sub = reference_files(STEP03, tmp_path / "sub")
+    assert program_problem(sub, tmp_path / "tree", traversal, stack_size, short) is None
+
+
+@pytest.mark.parametrize("form", list(FORMS))
+def test_structure_rule_on_each_form(form, tmp_path):
+    function, body, before, edit, message = FORMS[form]
+    sub = reference_files(STEP03, tmp_path / "sub")
+    path = sub / SHARED / FILES[function]
+    if body is not None:
+        replace_body(path, function, body, before)
+    if edit is not None:
+        text = path.read_text()
+        path.write_text(edit(text))
+        assert path.read_text() != text
+    problem = program_problem(sub, tmp_path / "tree", TRAVERSAL[function])
+    if message is None:
+        assert problem is None, problem
+    else:
+        assert problem and re.search(message, problem), problem
+        assert "\n" not in problem
+
+
+def test_structure_measure_reads_llvm_types():
+    """Sizes as the data layout gives them (vectors of three padded to four, struct padding), clang's
+    tail padding ([8 x i8] in Ray) not taken for an array, an array inside a struct taken."""
+    from rtlab.course.structure import TypeTable, array_bytes, read_program, size_of
+    ir = ('%struct.Ray = type { <3 x float>, <3 x float>, <3 x float>, float, float, [8 x i8] }\n'
+          '%struct.E = type { i32, float, float, float }\n'
+          '%struct.W = type { i32, [5 x %struct.E] }\n'
+          'define internal void @f(ptr %0) #0 {\n'
+          '  %ray = alloca %struct.Ray, align 16\n  %st = alloca %struct.W, align 4\n'
+          '  %t = alloca [3 x float], align 4\n  %n = alloca i32, i32 6, align 4\n  ret void\n}\n')
+    types = TypeTable(ir)
+    assert size_of(types.parse("%struct.Ray")) == 64 and array_bytes(types.parse("%struct.Ray")) == 0
+    assert size_of(types.parse("%struct.W")) == 84 and array_bytes(types.parse("%struct.W")) == 80
+    assert size_of(types.parse("<3 x float>")) == 16 and array_bytes(types.parse("<8 x i32>")) == 32
+    locals_ = {loc.name: loc.bytes for loc in read_program(ir).functions["f"]["locals"]}
+    assert locals_ == {"ray": 0, "st": 80, "t": 12, "n": 24}
+
+
+def test_lab03_copied_stack_scores_nothing_and_a_restart_of_its_own_passes(tmp_path):
+    """The audit's route, graded: lab 00's stack walk copied into the short stack, ropes and packet
+    traversals (with the audit's copy into kd-restart they had 67 / 100): each of their tests is refused
+    with the structure rule's message; a kd-restart written with scalar locals of its own passes."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    replace_body(sub / SHARED / "rt_kd_restart.h", "traverse_kd_restart", restart_with_scalars())
+    for f in ("traverse_kd_shortstack", "traverse_kd_ropes", "traverse_kd_packet"):
+        replace_body(sub / SHARED / FILES[f], f, ("    if (!valid)\n        return;\n" if f == "traverse_kd_packet"
+                                                  else "") + COPIED_STACK)
+    report = grade(STEP03, sub, tests=["trace_restart", "trace_shortstack", "trace_ropes", "trace_packet",
+                                       "render_packet"])
+    assert report.test("trace_restart").passed, report.test("trace_restart").output
+    why = {"trace_shortstack": "traverse_kd_shortstack keeps a per-ray private array stack",
+           "trace_ropes": "traverse_kd_ropes keeps a per-ray private array stack",
+           "trace_packet": "traverse_kd_packet keeps a per-ray private array stack",
+           "render_packet": "traverse_kd_packet keeps a per-ray private array stack"}
+    for name, message in why.items():
+        t = report.test(name)
+        assert t.score == 0 and t.status == "refused" and message in t.output, (name, t.status, t.output)
+    assert report.score == report.test("trace_restart").max_score
+
+
+# --------------------------------------------------------------------------------------------------
+# lab 01: a stub is told by its tokens; the CUDA functions by their PTX
+# --------------------------------------------------------------------------------------------------
+MEMORY_H, MEMORY_CU = f"{SHARED}/rt_memory.h", "kernels/cuda/01_memory.cu"
+
+
+def test_a_stub_is_told_by_its_tokens_not_its_todo_line():
+    """The template's stub with its TODO (and STUB) comment deleted, re-spaced or re-commented is still
+    the stub; any other body is not; no reference region of any lab equals its stub."""
+    from rtlab.course.kernel_sources import reference_kernels, reference_stubs, tree_stubs
+    from rtlab.course.template import template_files
+    assert tree_stubs(reference_kernels()) == {}
+    stubs = reference_stubs(MEMORY_CU)
+    tmpl = template_files(load_config(STEP01))[MEMORY_CU]
+    assert stubbed_functions(tmpl, stubs) == ["place_ray_shared"]
+    no_todo = "\n".join(line for line in tmpl.splitlines() if "TODO (lab" not in line and "STUB:" not in line)
+    assert stubbed_functions(no_todo) == []                     # its own region no longer names its stub...
+    assert stubbed_functions(no_todo, stubs) == ["place_ray_shared"]     # ...the reference's does
+    spaced = no_todo.replace("slots[lane] = make_ray(", "/* mine */ slots [ lane ]=make_ray (\n        ")
+    assert stubbed_functions(spaced, stubs) == ["place_ray_shared"]
+    other = no_todo.replace("f3(0.0f, 0.0f, 1.0f), 0.0f, 0.0f)", "f3(0.0f, 0.0f, 1.0f), 0.0f, 1.0f)")
+    assert other != no_todo and stubbed_functions(other, stubs) == []
+    assert template_stubs(tmpl)["place_ray_shared"] == stubs["place_ray_shared"]
+
+
+def test_student_tree_lists_a_stub_whose_todo_line_was_deleted(tmp_path):
+    from rtlab.course.kernel_sources import build_student_tree
+    sub = tmp_path / "sub"
+    write_template(STEP01, sub)
+    for rel in (MEMORY_H, MEMORY_CU):
+        p = sub / rel
+        p.write_text("\n".join(line for line in p.read_text().splitlines() if "TODO (lab" not in line) + "\n")
+    tree = build_student_tree(load_config(STEP01), sub, tmp_path / "tree")
+    assert tree.stubs[MEMORY_CU] == ["place_ray_shared"]
+    assert set(tree.stubs[MEMORY_H]) == {f for lf in load_config(STEP01).files if lf.path == MEMORY_H
+                                         for f in lf.functions}
+
+
+FETCH, SHARED_RAY = "texture", "shared"
+PTX_FORMS = {
+    # legitimate forms: pass
+    "int4 fetch, its xy": (FETCH, MEMORY_H, "fetch_int2_texture",
+                           "    int4 v = tex1Dfetch<int4>(tex, i);\n    return make_int2(v.x, v.y);", None),
+    "index arithmetic": (FETCH, MEMORY_H, "fetch_float4_texture",
+                         "    int j = (i * 2) / 2;\n    return tex1Dfetch<float4>(tex, j);", None),
+    "slot through a pointer": (SHARED_RAY, MEMORY_CU, "place_ray_shared",
+                               "    Ray *s = slots + lane;\n    *s = ray;\n    return s;", None),
+    "field by field": (SHARED_RAY, MEMORY_CU, "place_ray_shared",
+                       "    slots[lane].o = ray.o;\n    slots[lane].d = ray.d;\n    slots[lane].inv_d = ray.inv_d;\n"
+                       "    slots[lane].tmin = ray.tmin;\n    slots[lane].tmax = ray.tmax;\n    return &slots[lane];", None),
+    "make_ray again": (SHARED_RAY, MEMORY_CU, "place_ray_shared",
+                       "    slots[lane] = make_ray(ray.o, ray.d, ray.tmin, ray.tmax);\n    return &slots[lane];", None),
+    # forged: fail, each with its message
+    "element 0 (the audit's)": (
+        FETCH, MEMORY_H, "fetch_int_texture", "    return tex1Dfetch<int>(tex, 0);",
+        r"for objects \(fetch_int_texture\), element \d+: stores \(objects\[0\]\.x, 0, 0, 0\) where the reference "
+        r"stores \(objects\[\d+\]\.x, 0, 0, 0\): fetch_int_texture must return element i"),
+    "half an int2 (the audit's)": (
+        FETCH, MEMORY_H, "fetch_int2_texture", "    int4 v = tex1Dfetch<int4>(tex, i);\n    return make_int2(v.x, 0);",
+        r"for nodes \(fetch_int2_texture\), element (\d+): stores \(nodes\[\1\]\.x, 0, 0, 0\) where the reference "
+        r"stores \(nodes\[\1\]\.x, nodes\[\1\]\.y, 0, 0\)"),
+    "element i + 1": (
+        FETCH, MEMORY_H, "fetch_float4_texture", "    return tex1Dfetch<float4>(tex, i + 1);",
+        r"for node_data \(fetch_float4_texture\), element 5: stores \(node_data\[6\]\.x, node_data\[6\]\.y, "
+        r"node_data\[6\]\.z, node_data\[6\]\.w\) where the reference stores \(node_data\[5\]\.x"),
+    "low bits of i": (
+        FETCH, MEMORY_H, "fetch_int_texture", "    return tex1Dfetch<int>(tex, i & 1023);",
+        r"element 262143: stores \(objects\[1023\]\.x, 0, 0, 0\) where the reference stores \(objects\[262143\]\.x"),
+    "branch on what it read": (
+        FETCH, MEMORY_H, "fetch_int_texture",
+        "    int v = tex1Dfetch<int>(tex, 0);\n    if (v == 12345)\n        return tex1Dfetch<int>(tex, i & 1);\n"
+        "    return v;",
+        r"fetch_scene's PTX could not be followed \('bra' depends on a value it read"),
+    "constant direction": (
+        SHARED_RAY, MEMORY_CU, "place_ray_shared",
+        "    slots[lane] = make_ray(ray.o, f3(0.0f, 0.0f, 1.0f), ray.tmin, ray.tmax);\n    return &slots[lane];",
+        r"render_primary: place_ray_shared stores 3 of the slot's fields from the kernel's ray \(its origin and "
+        r"direction\) where the reference stores 9: bytes 12, 16, 20, 24, 28, 32 of the slot get no value"),
+    "the thread's index": (
+        SHARED_RAY, MEMORY_CU, "place_ray_shared",
+        "    float l = (float)lane;\n    slots[lane] = make_ray(f3(l, l + 1.0f, l + 2.0f), f3(l + 3.0f, 1.0f, 2.0f), "
+        "0.0f, 1e30f);\n    return &slots[lane];",
+        r"render_primary: place_ray_shared stores 0 of the slot's fields from the kernel's ray"),
+    "origin twice": (
+        SHARED_RAY, MEMORY_CU, "place_ray_shared",
+        "    slots[lane] = make_ray(ray.o, ray.o, ray.tmin, ray.tmax);\n    return &slots[lane];",
+        r"render_primary: .* only 6 distinct values of the ray reach the slot, the reference's 9"),
+    "the stub, tmax changed": (
+        SHARED_RAY, MEMORY_CU, "place_ray_shared",
+        "    slots[lane] = make_ray(f3(0.0f, 0.0f, 0.0f), f3(0.0f, 0.0f, 1.0f), 0.0f, 1.0f);\n    return &slots[lane];",
+        r"render_primary: place_ray_shared stores 0 of the slot's fields"),
+}
+
+
+def _ptx_facts(kernels_root: Path, placement: str) -> dict:
+    from rtlab.backends.nvcc import nvcc_ptx
+    from rtlab.course.checks.nvcc import ptx_facts
+    from rtlab.device.kernels import SceneFeatures, build_defines, build_options
+    from rtlab.device.variants import Variant
+    variant = Variant.paper(node_memory="texture") if placement == FETCH else Variant.paper(ray_memory="shared")
+    ptx = nvcc_ptx(kernels_root / "cuda" / f"{STEP01}.cu", build_defines(variant, SceneFeatures()),
+                   extra_options=build_options(variant, "cuda"))
+    return ptx_facts(ptx, variant.node_memory, variant.ray_memory)
+
+
+@pytest.mark.skipif(not nvcc_available(), reason="no nvcc (the CUDA toolkit) on PATH")
+@pytest.mark.parametrize("form", list(PTX_FORMS))
+def test_nvcc_checks_read_the_ptx(form, tmp_path):
+    from rtlab.course.checks.nvcc import SHARED_RAY_KERNELS, fetch_problems, shared_problems
+    placement, rel, function, body, message = PTX_FORMS[form]
+    ref = _ptx_facts(PROJECT_DIR / "kernels", placement)
+    shutil.copytree(PROJECT_DIR / "kernels", tmp_path / "kernels")
+    replace_body(tmp_path / rel, function, body)
+    got = _ptx_facts(tmp_path / "kernels", placement)
+    if placement == FETCH:
+        problems = fetch_problems(got["fetch_followed"], ref["fetch_followed"])
+    else:
+        problems = [p for k in SHARED_RAY_KERNELS
+                    for p in shared_problems(k, got["shared_stores"][k], ref["shared_stores"][k])]
+    if message is None:
+        assert problems == [], problems
+    else:
+        assert problems and re.search(message, problems[0]), problems
+
+
+@pytest.mark.skipif(not nvcc_available(), reason="no nvcc (the CUDA toolkit) on PATH")
+def test_lab01_nvcc_tests_fail_the_audits_submission_and_pass_the_reference(tmp_path):
+    """The audit's submission (the template; place_ray_shared's TODO and STUB lines deleted; the texture
+    fetches of element 0 and an int2 of half its texel) had 30 / 30 on the nvcc tests: now 0, saying why;
+    the reference keeps 30 / 30."""
+    tests = ["cuda_textures", "cuda_shared_ray"]
+    sub = tmp_path / "forged"
+    write_template(STEP01, sub)
+    cu = sub / MEMORY_CU
+    cu.write_text("\n".join(line for line in cu.read_text().splitlines()
+                            if "TODO (lab" not in line and "STUB:" not in line) + "\n")
+    h = sub / MEMORY_H
+    for function, body in (("fetch_int2_texture", "    int4 v = tex1Dfetch<int4>(tex, 0);\n    return make_int2(v.x, 0);"),
+                           ("fetch_float4_texture", "    return tex1Dfetch<float4>(tex, 0);"),
+                           ("fetch_int_texture", "    return tex1Dfetch<int>(tex, 0);")):
+        replace_body(h, function, body)
+    report = grade(STEP01, sub, tests=tests)
+    assert report.score == 0, [(t.name, t.output) for t in report.tests]
+    tex, ray = report.test("cuda_textures"), report.test("cuda_shared_ray")
+    assert re.search(r"followed through its PTX for nodes \(fetch_int2_texture\), element \d+: stores "
+                     r"\(nodes\[0\]\.x, 0, 0, 0\)", tex.output), tex.output
+    assert "place_ray_shared still holds the template's stub" in ray.output, ray.output
+    assert "render_primary: place_ray_shared stores" in ray.output and "trace_rays: place_ray_shared stores" \
+        in ray.output, ray.output
+    ref = grade(STEP01, reference_files(STEP01, tmp_path / "ref"), tests=tests)
+    assert ref.score == ref.max_score == 30, [(t.name, t.output) for t in ref.tests]
+
+
+def test_lab03_template_still_compiles_its_stubs_are_not_refused(tmp_path):
+    """The template's packet stub writes no local memory, but a stub is no forged packet: the structure
+    rule leaves the template's stubs to their own tests (they fail as stubs), and the compile test,
+    which builds the packet traversal, passes."""
+    write_template(STEP03, tmp_path / "tmpl")
+    report = grade(STEP03, tmp_path / "tmpl", tests=["compile", "trace_packet", "trace_restart"])
+    assert report.test("compile").passed, report.test("compile").output
+    for name in ("trace_packet", "trace_restart"):
+        t = report.test(name)
+        assert t.status == "failed" and "keeps" not in t.output and "template's stub" in t.output, (name, t.output)
