@@ -200,7 +200,7 @@ class GradingRun(TestExecution):
         by_file: dict[str, list[str]] = {}
         for f in names:
             by_file.setdefault(stubs[f], []).append(f)
-        return "; ".join(f"{', '.join(fs)} in {rel} still hold{'s' if len(fs) == 1 else ''} the template's stub (TODO)"
+        return "; ".join(f"{', '.join(fs)} in {rel} still hold{'s' if len(fs) == 1 else ''} the template's stub"
                          for rel, fs in by_file.items())
 
     # -- tests ----------------------------------------------------------------------------------

@@ -54,6 +54,13 @@ rtlab render default --size 128 --isect moller --check   # names the kernel sour
 rtlab grade 00_primary .                          # your kernels/ as the grader sees them
 ```
 
+A kernel of yours that never ends stops `rtlab render`, a script or a notebook after 120 s with a
+message (`$RTLAB_KERNEL_TIMEOUT` sets the limit), and one that crashes `rtlab render` is named in one
+line; `rtlab grade` gives each test its own process and limits.
+
+The course's README follows. Where it names `docs/`, `tests/` or `experiments/`, it means the course's
+repository: those folders are not in this release.
+
 ---
 
 """
