@@ -77,6 +77,18 @@ def _buffer_blocked(words, o, light, tris):
     return False
 
 
+def _answers_as_brute_force(words, receivers, light, tris) -> dict:
+    """How often the buffer answered blocked (True), free (False) or "ask the traversal" (None) for the
+    receivers' shadow rays, each answer checked against brute force."""
+    answered = {True: 0, False: 0, None: 0}
+    for o in receivers:
+        got = _buffer_blocked(words, o, light, tris)
+        answered[got] += 1
+        if got is not None:
+            assert got == _segment_blocked(o, light, tris), o
+    return answered
+
+
 def test_buffer_answers_as_brute_force():
     """Random triangles around a light; receivers anywhere and on the triangles themselves (the full
     occlusion path): the buffer answers as a test of every triangle does, for every receiver."""
@@ -92,12 +104,7 @@ def test_buffer_answers_as_brute_force():
     bary = rng.dirichlet((1, 1, 1), 1500)
     on_tris = np.einsum("nk,nkc->nc", bary, tris[rng.integers(0, len(tris), 1500)])
     receivers = np.concatenate([rng.uniform(-8, 8, (1500, 3)), on_tris + rng.normal(0, 1e-3, on_tris.shape)])
-    answered = {True: 0, False: 0, None: 0}
-    for o in receivers:
-        got = _buffer_blocked(words, o, light, tris)
-        answered[got] += 1
-        if got is not None:
-            assert got == _segment_blocked(o, light, tris), o
+    answered = _answers_as_brute_force(words, receivers, light, tris)
     assert answered[True] > 300 and answered[False] > 300, answered
     assert stats["cells_blocked_beyond"] > 0 and stats["resolution"] == light_buffer.RESOLUTIONS[0]
 
@@ -114,12 +121,7 @@ def test_a_triangle_at_the_light_blocks_no_cell_whole():
     words = build_light_buffer(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3), light)
     receivers = np.concatenate([light + rng.uniform(-6, 6, (1500, 3)) * [1, 0, 1] + [0, 1, 0] * rng.uniform(0.1, 6, (1500, 1)),
                                 rng.uniform(-8, 8, (1500, 3))])
-    answered = {True: 0, False: 0, None: 0}
-    for o in receivers:
-        got = _buffer_blocked(words, o, light, tris)
-        answered[got] += 1
-        if got is not None:
-            assert got == _segment_blocked(o, light, tris), o
+    answered = _answers_as_brute_force(words, receivers, light, tris)
     assert answered[False] > 1000, answered
 
 

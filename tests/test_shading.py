@@ -383,58 +383,56 @@ def test_rays_spawned_on_a_sphere_leave_or_cross_it(backend, scale, offset):
     assert crossed.all(), f"{np.count_nonzero(~crossed)} of {spawned.sum()} refraction rays did not cross the sphere"
 
 
-@pytest.mark.parametrize("gap,offset", [(s, o) for s in SCALES for o in OFFSETS
-                                        if s >= 1e3 * np.spacing(np.float32(o + s))])
-def test_shadow_rays_between_facing_surfaces_are_not_occluded(backend, gap, offset):
-    """Floor and ceiling facing each other: lights between them, up to a thousandth of the gap
-    under the ceiling, reach every point of the floor; lights above the ceiling reach none."""
-    rng = np.random.default_rng(17)
+FACING_CASES = [(s, o) for s in SCALES for o in OFFSETS if s >= 1e3 * np.spacing(np.float32(o + s))]
+
+
+def _floor_under_ceiling(backend, gap, offset, rng, m=2000):
+    """A floor and a ceiling ``gap`` above it, facing each other, ``offset`` from the origin, and the hits
+    of m rays from between them down on the floor: (scene, base point, half width, directions, hits)."""
     base = np.array([0.6, 0.8, 0.0]) * offset
     half = 5.0 * gap
     floor = base + np.array([[-half, 0, -half], [half, 0, -half], [0, 0, 2 * half]])
     ceiling = base + np.array([[-half, gap, -half], [0, gap, 2 * half], [half, gap, -half]])
     scene = _scene(np.concatenate([floor, ceiling]), np.arange(6).reshape(2, 3), Material("wall"))
-    m = 2000
     xz = rng.uniform(-0.3, 0.3, (m, 2)) * half
     o = base + np.stack([xz[:, 0], np.full(m, 0.5 * gap), xz[:, 1]], 1)
     d = np.stack([rng.normal(0, 0.5, m), -np.ones(m), rng.normal(0, 0.5, m)], 1)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hits = trace(scene, o.astype(np.float32), d.astype(np.float32), backend=backend)
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    hits = trace(scene, o.astype(np.float32), d, backend=backend)
     assert np.all(hits.tri == 0)
+    return scene, base, half, d, hits
+
+
+@pytest.mark.parametrize("gap,offset", FACING_CASES)
+def test_shadow_rays_between_facing_surfaces_are_not_occluded(backend, gap, offset):
+    """Floor and ceiling facing each other: lights between them, up to a thousandth of the gap
+    under the ceiling, reach every point of the floor; lights above the ceiling reach none."""
+    rng = np.random.default_rng(17)
+    scene, base, half, d, hits = _floor_under_ceiling(backend, gap, offset, rng)
+    m = len(d)
     lxz = rng.uniform(-0.3, 0.3, (m, 2)) * half
     height = np.concatenate([rng.uniform(0.01, 0.99, m // 2), 1.0 - 10.0 ** rng.uniform(-3, -1, m - m // 2)])
     between = base + np.stack([lxz[:, 0], height * gap, lxz[:, 1]], 1)
-    visible = probe_shadow_rays(scene, backend, d.astype(np.float32), hits, between)
+    visible = probe_shadow_rays(scene, backend, d, hits, between)
     assert visible.all(), f"{np.count_nonzero(~visible)} of {m} shadow rays falsely occluded"
     above = base + np.stack([lxz[:, 0], np.full(m, 1.5 * gap), lxz[:, 1]], 1)
-    assert not probe_shadow_rays(scene, backend, d.astype(np.float32), hits, above).any()
+    assert not probe_shadow_rays(scene, backend, d, hits, above).any()
 
 
-@pytest.mark.parametrize("gap,offset", [(s, o) for s in SCALES for o in OFFSETS
-                                        if s >= 1e3 * np.spacing(np.float32(o + s))])
+@pytest.mark.parametrize("gap,offset", FACING_CASES)
 def test_a_light_on_a_surface_is_not_shadowed_by_it(backend, gap, offset):
     """Lights lying on the ceiling (exactly in its plane, and within a millionth of the gap above or
     below it) reach every point of the floor: a shadow segment stops short of its light
     (RT_SHADOW_TMAX), so the surface holding a light does not block it even where o + (light - o)
     rounds past the light."""
     rng = np.random.default_rng(23)
-    base = np.array([0.6, 0.8, 0.0]) * offset
-    half = 5.0 * gap
-    floor = base + np.array([[-half, 0, -half], [half, 0, -half], [0, 0, 2 * half]])
-    ceiling = base + np.array([[-half, gap, -half], [0, gap, 2 * half], [half, gap, -half]])
-    scene = _scene(np.concatenate([floor, ceiling]), np.arange(6).reshape(2, 3), Material("wall"))
+    scene, base, half, d, hits = _floor_under_ceiling(backend, gap, offset, rng)
+    m = len(d)
     plane = float(scene.vertices[3, 1])                 # the ceiling's plane, as stored (float32)
-    m = 2000
-    xz = rng.uniform(-0.3, 0.3, (m, 2)) * half
-    o = base + np.stack([xz[:, 0], np.full(m, 0.5 * gap), xz[:, 1]], 1)
-    d = np.stack([rng.normal(0, 0.5, m), -np.ones(m), rng.normal(0, 0.5, m)], 1)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hits = trace(scene, o.astype(np.float32), d.astype(np.float32), backend=backend)
-    assert np.all(hits.tri == 0)
     lxz = base[[0, 2]] + rng.uniform(-0.3, 0.3, (m, 2)) * half
     nudge = np.where(np.arange(m) < m // 2, 0.0, gap * 1e-6 * rng.uniform(-1, 1, m))
     lights = np.stack([lxz[:, 0], np.float32(plane + nudge), lxz[:, 1]], 1).astype(np.float32)
-    visible = probe_shadow_rays(scene, backend, d.astype(np.float32), hits, lights.astype(np.float64))
+    visible = probe_shadow_rays(scene, backend, d, hits, lights.astype(np.float64))
     assert visible.all(), f"{np.count_nonzero(~visible)} of {m} lights on the ceiling shadowed by it"
 
 
