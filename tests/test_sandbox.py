@@ -386,6 +386,27 @@ def test_lexer_reads_as_clang_does():
         [(2, "a byte outside ASCII out"), (3, "the attribute constructo")], problems
 
 
+def test_conditionals_test_only_the_labs_macros():
+    """A conditional on a macro only the runtime's compiler defines (PoCL's POCL_DEVICE_ADDRESS_BITS, a
+    CPU's __AVX2__) hid a call to lab 00's traverse_kd_stack from the rules that read the code with
+    clang beside the compile (67 / 100 for lab 03); the lab's own macros, those the file's reference
+    tests and the file's own stay testable, and every reference file passes."""
+    from rtlab.course.submission import check_source, tree_rules
+    from rtlab.paths import REFERENCE_KERNEL_DIR
+    rules = tree_rules(REFERENCE_KERNEL_DIR)
+    rel = "kernels/shared/rt_kd_restart.h"
+    text = (REFERENCE_KERNEL_DIR / "shared" / "rt_kd_restart.h").read_text()
+    assert check_source(text, rel, rules) == []
+    hidden = text.replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n#ifdef POCL_DEVICE_ADDRESS_BITS\n"
+                          "    traverse_kd_stack(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit);\n#endif\n"
+                          "#if defined(__AVX2__) && RT_STACK_SIZE > 4\n#endif\n", 1)
+    problems = check_source(hidden, rel, rules)
+    assert [p.reason.split(",")[0] for p in problems] == ["#ifdef tests POCL_DEVICE_ADDRESS_BITS", "#if tests __AVX2__"]
+    fine = text.replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n#define MY_DEPTH 3\n#if MY_DEPTH > 2 && "
+                        "RT_STACK_SIZE > 4 && defined(RT_TRAVERSAL)\n#endif\n", 1)
+    assert check_source(fine, rel, rules) == []
+
+
 def test_student_wheel_holds_no_solution(tmp_path, monkeypatch):
     """`rtlab lab release --wheel`: the wheel a notebook server installs ships the release's stubbed
     kernels only; the same check finds every solution in the repository's kernels (what `pip install .`

@@ -11,6 +11,11 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
 * ``#define``/``#undef`` of names of the file's own (new names, or what its template defines): a name
   the rest of the kernel sources use (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
+* conditionals (``#if``, ``#ifdef``...) that test only the lab's own macros (those the kernel sources
+  define), those the file's reference tests, and the file's own: the rules that read the code as the
+  compiler does (rtlab.course.lab_calls, rtlab.course.structure) run clang beside the compile, and a
+  macro only the runtime's compiler defines (PoCL's ``POCL_DEVICE_ADDRESS_BITS``, ``__IMAGE_SUPPORT__``)
+  would hide code from them that the kernel runs;
 * no ``asm``, no builtins that reach the stack behind a function's back
   (``__builtin_return_address``...), no attributes that run code when the kernel's binary is loaded
   (``constructor``, ``ifunc``, ``section``...), no ``_Pragma``, ``__has_include``, token pasting ``##``
@@ -88,6 +93,15 @@ class SourceRules:
     headers: frozenset[str]          # names #include may name (basenames of kernels/shared)
     names_used: dict                 # identifier -> a file (relpath) of the tree that uses it
     defined_by_file: dict            # relpath -> frozenset of macro names the reference file defines
+    tested_by_file: dict = None      # relpath -> frozenset of macro names the reference file's conditionals test
+
+    def testable(self, relpath: str) -> frozenset:
+        """Macros a conditional of the submitted file ``relpath`` may test (besides the file's own)."""
+        return self.defined_anywhere | (self.tested_by_file or {}).get(relpath, frozenset())
+
+    @property
+    def defined_anywhere(self) -> frozenset:
+        return frozenset().union(*self.defined_by_file.values())
 
 
 def tree_rules(root: Path, extra_files=()) -> SourceRules:
@@ -97,6 +111,7 @@ def tree_rules(root: Path, extra_files=()) -> SourceRules:
     headers = frozenset(p.name for p in (root / "shared").glob("*.h"))
     names: dict[str, dict[str, None]] = {}
     defined: dict[str, frozenset] = {}
+    tested: dict[str, frozenset] = {}
     files = [(f"kernels/{p.relative_to(root).as_posix()}", p) for sub in ("shared", "cuda", "opencl")
              for p in sorted((root / sub).glob("*")) if p.is_file()]
     files += [(f"rtlab/course/harness/{Path(p).name}", Path(p)) for p in extra_files]
@@ -105,10 +120,19 @@ def tree_rules(root: Path, extra_files=()) -> SourceRules:
         directives, _ = split_directives(toks)
         defined[rel] = frozenset(d.args[0].text for d in directives
                                  if d.name == "define" and d.args and d.args[0].kind == "ident")
+        tested[rel] = frozenset(n for d in directives if d.name in CONDITIONALS for n in _macros_tested(d))
         for t in toks:
             if t.kind == "ident":
                 names.setdefault(t.text, {})[rel] = None
-    return SourceRules(headers, {k: tuple(v) for k, v in names.items()}, defined)
+    return SourceRules(headers, {k: tuple(v) for k, v in names.items()}, defined, tested)
+
+
+CONDITIONALS = {"if", "ifdef", "ifndef", "elif", "elifdef", "elifndef"}
+
+
+def _macros_tested(d) -> list[str]:
+    """The names a conditional directive tests (``defined`` itself aside)."""
+    return [t.text for t in d.args if t.kind == "ident" and t.text != "defined"]
 
 
 def _include_problem(args, headers) -> str | None:
@@ -161,6 +185,8 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
             break
     directives, _ = split_directives(toks)
     own = rules.defined_by_file.get(relpath, frozenset())
+    testable = rules.testable(relpath) | {d.args[0].text for d in directives
+                                           if d.name == "define" and d.args and d.args[0].kind == "ident"}
     for d in directives:
         if d.name.startswith("#"):
             refuse(d.line, f"a line marker (# {d.name[1:]} ...) is not allowed")
@@ -175,6 +201,12 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
             what = d.args[0].text if d.args else ""
             if what not in ALLOWED_PRAGMAS:
                 refuse(d.line, f"#pragma {what} is not allowed (allowed: once, unroll, nounroll, OPENCL, STDC)")
+        elif d.name in CONDITIONALS and rules.tested_by_file is not None:
+            unknown = [n for n in _macros_tested(d) if n not in testable]
+            if unknown:
+                refuse(d.line, f"#{d.name} tests {unknown[0]}, not one of the lab's macros (RT_... and those this "
+                               f"file's template tests): the grader reads your code as the compiler does under the "
+                               f"lab's own macros, and code behind the runtime's (PoCL's) would escape it")
         elif d.name in ("define", "undef") and d.args and d.args[0].kind == "ident":
             name = d.args[0].text
             users = [f for f in rules.names_used.get(name, ()) if f != relpath]
