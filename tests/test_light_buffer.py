@@ -12,6 +12,7 @@ from rtlab.device.light_buffers import light_buffer_defines
 from rtlab.device.variants import Variant
 from rtlab.device.whitted import render_whitted
 from rtlab.errors import RtlabError
+from rtlab.reference.whitted import shadow_segment_end
 from rtlab.scene import load_scene
 from rtlab.scene.materials import apply_materials
 from rtlab.scene.procedural import default_scene, with_secondary_materials
@@ -23,7 +24,7 @@ BVH = Variant(traversal="bvh")      # a traversal whose frames take light buffer
 
 def _segment_blocked(o, light, tris):
     """Brute force, float64: whether segment o -> light crosses any triangle (Moller-Trumbore, t in
-    (0, SHADOW_TMAX): the shading's segment stops short of the light)."""
+    (0, shadow_segment_end): the shading's segment stops short of the light)."""
     d = light - o
     v0, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     p = np.cross(d, e2)
@@ -34,7 +35,8 @@ def _segment_blocked(o, light, tris):
         q = np.cross(s, e1)
         v = (q @ d) / det
         t = (e2 * q).sum(1) / det
-    return bool(np.any((det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < light_buffer.SHADOW_TMAX)))
+    end = shadow_segment_end(light, d[None])[0]
+    return bool(np.any((det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < end)))
 
 
 def _distance_to_triangle(p, tri):
@@ -110,8 +112,8 @@ def test_buffer_answers_as_brute_force():
 
 
 def test_a_triangle_at_the_light_blocks_no_cell_whole():
-    """A wide triangle a hair from the light (within the share of a segment that shadow rays leave
-    out, RT_SHADOW_TMAX) blocks no shadow ray; the buffer must not answer "blocked beyond" for the
+    """A wide triangle a hair from the light (within the gap that shadow segments leave before the
+    light, shadow_segment_end) blocks no shadow ray; the buffer must not answer "blocked beyond" for the
     cells it covers, and answers as brute force for receivers beyond it and around it."""
     rng = np.random.default_rng(29)
     light = np.array([0.25, 0.5, -0.75])

@@ -21,6 +21,7 @@ from rtlab.device.whitted import NO_RAY, render_whitted, shading_defines
 from rtlab.errors import RtlabError
 from rtlab.reference.whitted import reference_whitted, whitted_error
 from rtlab.scene.materials import apply_materials, glass_scene, mtl_materials, reachable_bounces, shading_features
+from rtlab.scene.arrays import scene_from_arrays
 from rtlab.scene.model import Camera, Light, Material, Scene
 
 from .conftest import require_scene_file
@@ -423,7 +424,7 @@ def test_shadow_rays_between_facing_surfaces_are_not_occluded(backend, gap, offs
 def test_a_light_on_a_surface_is_not_shadowed_by_it(backend, gap, offset):
     """Lights lying on the ceiling (exactly in its plane, and within a millionth of the gap above or
     below it) reach every point of the floor: a shadow segment stops short of its light
-    (RT_SHADOW_TMAX), so the surface holding a light does not block it even where o + (light - o)
+    (shadow_segment_end), so the surface holding a light does not block it even where o + (light - o)
     rounds past the light."""
     rng = np.random.default_rng(23)
     scene, base, half, d, hits = _floor_under_ceiling(backend, gap, offset, rng)
@@ -454,6 +455,74 @@ def test_a_light_in_the_floors_plane_lights_a_sphere_as_the_reference_does(backe
     result = render_whitted(scene, backend, shadows="one-pass", write_hits=True)
     ref = reference_whitted(scene, bounces=0, shadows=True)
     _check_against_reference(result, ref, "a light in the floor's plane")
+
+
+def _box(lo, hi):
+    """A closed box, counter-clockwise seen from outside: (vertices (8, 3), faces (12, 3))."""
+    v = np.array([[(lo, hi)[i & 1][0], (lo, hi)[i >> 1 & 1][1], (lo, hi)[i >> 2 & 1][2]] for i in range(8)], float)
+    f = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3],
+                  [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]])
+    c = v.mean(0)
+    for k in range(12):
+        a, b, d = v[f[k]]
+        if np.dot(np.cross(b - a, d - a), a - c) < 0:
+            f[k] = f[k][[0, 2, 1]]
+    return v, f
+
+
+@pytest.mark.parametrize("inside", [1e-2, 1e-4])
+def test_a_light_just_inside_a_closed_box_lights_nothing_outside(backend, inside):
+    """A light 1e-2 and 1e-4 (of the box's size) inside a closed box's wall: nothing outside is lit, in
+    the kernels (tree, wavefront, the light buffer) and the float64 reference. A shadow segment that
+    stopped a fixed 1e-4 of its length short of the light let the floor see it through the wall (655 of
+    2,304 pixels at 1e-4); it now stops a few float ulps short (shadow_segment_end)."""
+    v, f = _box((-1, 0, -1), (1, 2, 1))
+    floor = np.array([[-10, 0, -10], [10, 0, -10], [10, 0, 10], [-10, 0, 10]], float)
+    vertices, faces = np.r_[v, floor], np.r_[f, [[8, 10, 9], [8, 11, 10]]]
+    camera = Camera((0, 12, 14), (0, 0, 0), width=48, height=48)
+    dark = scene_from_arrays(vertices, faces, lights=[], camera=camera)
+    lit = scene_from_arrays(vertices, faces, lights=[Light((1 - inside, 1.0, 0.2))], camera=camera)
+    ambient = reference_whitted(dark).image
+    assert np.array_equal(reference_whitted(lit, shadows=True).image, ambient)
+    for how in (dict(), dict(schedule="wavefront"), dict(variant=Variant(traversal="bvh"))):
+        image = render_whitted(lit, backend, **how).image
+        assert np.array_equal(image, render_whitted(dark, backend, **how).image), \
+            f"{how}: {np.count_nonzero(np.any(image != ambient, axis=2))} pixels lit through the wall"
+
+
+def test_zero_vertex_normals_shade_as_the_face(backend):
+    """A floor whose vertex normals are all zero ("vn 0 0 0"): the kernels (Whitted and the primary
+    shading) and both float64 references shade it with its flat normal, as if it had none. The
+    interpolated normal was NaN: black in the Whitted kernels, ambient in their reference, and the
+    other way round in the primary pair."""
+    from rtlab.device.rendering import render
+    from rtlab.reference.shading import reference_shade
+    floor = np.array([[-4.0, 0, -4], [4, 0, -4], [4, 0, 4], [-4, 0, 4]])
+    faces = np.array([[0, 2, 1], [0, 3, 2]])
+    camera = Camera((0.5, 3.0, 5.0), (0.0, 0.0, 0.0), width=32, height=32)
+    light = [Light((0.3, 2.0, 0.4))]
+    flat = scene_from_arrays(floor, faces, camera=camera, lights=light)
+    zero = scene_from_arrays(floor, faces, camera=camera, lights=light, vertex_normals=np.zeros((4, 3)))
+    for scene in (flat, zero):
+        frame = render_whitted(scene, backend, write_hits=True)
+        _check_against_reference(frame, reference_whitted(scene, bounces=0, shadows=True), scene.name)
+    assert np.array_equal(render_whitted(zero, backend).image, render_whitted(flat, backend).image)
+    primary = render(zero, backend, write_hits=True)
+    assert np.array_equal(primary.image, render(flat, backend).image)
+    hits = primary.hits
+    from rtlab.scene.model import camera_rays
+    o, d = camera_rays(camera)
+    ref = reference_shade(zero, o, d, hits.tri, hits.t, hits.u, hits.v)
+    assert np.abs(ref * 255 - primary.image.reshape(-1, 3)).max() <= COLOR_TOL + 1
+
+
+def test_lights_and_normals_the_shading_cannot_use_are_errors():
+    floor = np.array([[-4.0, 0, -4], [4, 0, -4], [4, 0, 4], [-4, 0, 4]])
+    faces = np.array([[0, 2, 1], [0, 3, 2]])
+    with pytest.raises(RtlabError, match="light 0 at .* lies beyond 1e\\+18 from the origin"):
+        scene_from_arrays(floor, faces, lights=[Light((2e19, 1.0, 0.0))])
+    with pytest.raises(RtlabError, match="vertex normal 1 is .*normals must be finite"):
+        scene_from_arrays(floor, faces, vertex_normals=[[0, 1, 0], [np.nan, 1, 0], [0, 1, 0], [0, 1, 0]])
 
 
 # ---- features, defines and what they leave out ---------------------------------------------------

@@ -35,10 +35,10 @@ RT_FN int light_buffer_cell(float3 w, int res)
     return (face * res + row) * res + col;
 }
 
-/* Whether a triangle crosses the shadow ray (its t in (0, RT_SHADOW_TMAX): light_visible's segment) */
+/* Whether a triangle crosses the shadow ray (its t in (0, shadow->tmax): light_visible's segment) */
 RT_FN int light_buffer_blocks(RT_SCENE_PARAMS, const Ray *shadow, int tri)
 {
-    Hit hit = make_miss(RT_SHADOW_TMAX);
+    Hit hit = make_miss(shadow->tmax);
     return intersect_tri(RT_SCENE_ARGS, shadow, tri, &hit);
 }
 
@@ -77,7 +77,8 @@ RT_FN int light_visible_buffered(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame,
     int first = base + (int)((unsigned int)head >> RT_LB_COUNT_BITS);
     int id_bits = shape >> 16;
     int id_mask = (1 << id_bits) - 1;
-    Ray shadow = make_ray(o, sub3(light_pos, o), 0.0f, RT_SHADOW_TMAX);
+    float3 d = sub3(light_pos, o);
+    Ray shadow = make_ray(o, d, 0.0f, shadow_segment_end(light_pos, d));
     for (int i = 0; i < count; i += 2) {
         int near = load_node_word(node_data, first + i);
         int far = load_node_word(node_data, first + rt_imin(i + 1, count - 1));

@@ -38,7 +38,11 @@ RT_FN float3 hit_normal(RT_SCENE_PARAMS, const Ray *ray, const Hit *hit)
     float3 n = mul3(xyz(load_tri_normal(normals, hit->tri, 0)), w);
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
     n = madd3(n, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v);
-    n = normalize3(n);
+    float length2 = dot3(n, n);
+    /* no direction (a file's "vn 0 0 0", or corners' normals that cancel): the flat normal */
+    n = length2 > 0.0f ? mul3(n, 1.0f / rt_sqrt(length2))
+                       : geometric_normal(xyz(load_hit_vertex(tris, hit->tri, 0)), xyz(load_hit_vertex(tris, hit->tri, 1)),
+                                          xyz(load_hit_vertex(tris, hit->tri, 2)));
 #else
     float3 n = geometric_normal(xyz(load_hit_vertex(tris, hit->tri, 0)), xyz(load_hit_vertex(tris, hit->tri, 1)),
                                 xyz(load_hit_vertex(tris, hit->tri, 2)));
@@ -133,7 +137,10 @@ RT_FN Surface surface_at(RT_SCENE_PARAMS, float3 d, const Hit *hit)
 #if RT_SMOOTH_NORMALS
     float3 ns = mul3(xyz(load_tri_normal(normals, hit->tri, 0)), 1.0f - hit->u - hit->v);
     ns = madd3(ns, xyz(load_tri_normal(normals, hit->tri, 1)), hit->u);
-    ns = normalize3(madd3(ns, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v));
+    ns = madd3(ns, xyz(load_tri_normal(normals, hit->tri, 2)), hit->v);
+    float length2 = dot3(ns, ns);
+    /* no direction (a file's "vn 0 0 0", or corners' normals that cancel): the flat normal */
+    ns = length2 > 0.0f ? mul3(ns, 1.0f / rt_sqrt(length2)) : s.ng;
     s.ns = dot3(ns, d) > 0.0f ? mul3(ns, -1.0f) : ns;
 #else
     s.ns = s.ng;

@@ -93,21 +93,33 @@ RT_FN float3 spawn_origin(const Surface *s, float3 d)
 
 /* ---- Local shading with shadow rays (§3.2.1) ------------------------------------------------- */
 
-/* Where a shadow segment ends: t = 1 is the light, and the segment stops short of it by this share of
- * its length (pbrt-v4's ShadowEpsilon). At t = 1 exactly, o + (light_pos - o) rounds to a point up to
- * an ulp past the light, so a surface the light lies on (a lamp on the floor) would block the light
- * it holds, seen from everywhere. The host reads it (rtlab/reference/whitted.py, rtlab/accel/light_buffer.py). */
-#define RT_SHADOW_TMAX 0.9999f
+/* Where a shadow segment from o along d = light_pos - o ends, as t (t = 1 is the light): short of the
+ * light by RT_SHADOW_GAP_ULPS float ulps of the segment's and the light's coordinates (the largest
+ * |component| of each). At t = 1, o + d rounds to a point up to an ulp of d past the light, and a
+ * surface the light lies on is itself only within an ulp of its coordinates of the light: such a
+ * surface (a lamp on the floor) would block the light it holds. A surface farther from the light
+ * than the gap blocks it, however long the segment (pbrt's fixed 1e-4 of the segment let a wall
+ * 1e-4 of a segment from the light, on the light's far side, pass light through). Left out: surfaces
+ * the segment meets at under ~1/RT_SHADOW_GAP_ULPS rad from their plane, within the gap over that
+ * angle. The host reads the constant (rtlab/reference/whitted.py, rtlab/accel/light_buffer.py). */
+#define RT_SHADOW_GAP_ULPS 32
+RT_FN float shadow_segment_end(float3 light_pos, float3 d)
+{
+    float span = rt_max(rt_abs(d.x), rt_max(rt_abs(d.y), rt_abs(d.z)));
+    float at = rt_max(rt_abs(light_pos.x), rt_max(rt_abs(light_pos.y), rt_abs(light_pos.z)));
+    return 1.0f - (float)RT_SHADOW_GAP_ULPS * 5.9604645e-8f * (1.0f + at / span);
+}
 
 /* Shadow ray: whether the segment from surface s to the point light at light_pos is free. An
  * any-hit query with the primary rays' traversal code (the paper: "the same traversal code");
- * cast from the surface, whose spawn offset keeps it off its own triangle; t in (0, RT_SHADOW_TMAX)
- * spans the segment, so nothing behind the light, or holding it, occludes. */
+ * cast from the surface, whose spawn offset keeps it off its own triangle; t in (0,
+ * shadow_segment_end) spans the segment, so nothing behind the light, or holding it, occludes. */
 RT_FN int light_visible(RT_SCENE_PARAMS, RT_CONST const RtFrame *frame, const Surface *s, float3 light_pos)
 {
     /* BEGIN SOLUTION */
     float3 o = spawn_origin(s, sub3(light_pos, s->p));
-    Ray shadow = make_ray(o, sub3(light_pos, o), 0.0f, RT_SHADOW_TMAX);
+    float3 d = sub3(light_pos, o);
+    Ray shadow = make_ray(o, d, 0.0f, shadow_segment_end(light_pos, d));
     return !trace_any(RT_SCENE_ARGS, frame->scene_min, frame->scene_max, &shadow);
     /* END SOLUTION */
 }

@@ -51,7 +51,7 @@ HEADER_WORDS = kernel_constant("RT_LB_HEADER_WORDS")
 CELL_WORDS = kernel_constant("RT_LB_CELL_WORDS")
 COUNT_BITS = kernel_constant("RT_LB_COUNT_BITS")
 TO_TRAVERSAL = kernel_constant("RT_LB_TO_TRAVERSAL")
-SHADOW_TMAX = float(np.float32(kernel_constant("RT_SHADOW_TMAX")))   # where a shadow segment ends (rt_whitted.h)
+SHADOW_GAP_ULPS = kernel_constant("RT_SHADOW_GAP_ULPS")   # where a shadow segment ends (rt_whitted.h, shadow_segment_end)
 MAX_ID_BITS = 24            # a ref keeps at least 8 bits of its distance (the float's exponent)
 
 
@@ -269,11 +269,14 @@ def build_light_buffer(vertices, faces, light, max_words: int = MAX_WORDS) -> np
     distances = (exact * (1.0 - DISTANCE_MARGIN)).astype(np.float32)
     distances = np.where(distances > exact, np.nextafter(distances, np.float32(0)), distances).astype(np.float32)
     order = np.argsort(exact, kind="stable")
-    # A shadow segment stops (1 - SHADOW_TMAX) of its length short of the light, so a triangle that near
-    # the light blocks no segment there: it covers a cell ("blocked beyond") only beyond that share of the
-    # longest segment in the scene, to the farthest corner of its bounds (with room for spawn offsets)
+    # A shadow segment stops short of the light by SHADOW_GAP_ULPS ulps of its largest |component| and the
+    # light's (shadow_segment_end): at most that many times u sqrt(3) (segment + light) in distance. A
+    # triangle that near the light blocks no segment there, so it covers a cell ("blocked beyond") only
+    # beyond the gap of the longest segment in the scene, to the farthest corner of its bounds (with room
+    # for spawn offsets)
     corners = np.array(list(itertools.product(*zip(v.min(0), v.max(0))))) if len(v) else p[None]
-    cover_min = (1.0 - SHADOW_TMAX) * float(np.linalg.norm(corners - p, axis=1).max()) * (1.0 + 1e-2)
+    reach = float(np.linalg.norm(corners - p, axis=1).max())
+    cover_min = SHADOW_GAP_ULPS * 2.0 ** -24 * np.sqrt(3.0) * (reach + float(np.abs(p).max())) * (1.0 + 1e-2)
     id_bits = max(int(len(f) - 1).bit_length(), 1)
     if id_bits > MAX_ID_BITS:
         return None

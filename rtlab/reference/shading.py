@@ -24,9 +24,12 @@ def reference_shade(scene: Scene, origins: np.ndarray, directions: np.ndarray, t
         nv = scene.vertex_normals[scene.faces[ids]].astype(np.float64)        # (H, 3, 3)
         uu, vv = u[hit].astype(np.float64), v[hit].astype(np.float64)
         n = nv[:, 0] * (1 - uu - vv)[:, None] + nv[:, 1] * uu[:, None] + nv[:, 2] * vv[:, None]
-    else:
-        tv = scene.vertices[scene.faces[ids]].astype(np.float64)
-        n = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
+    tv = scene.vertices[scene.faces[ids]].astype(np.float64)
+    flat = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
+    if scene.vertex_normals is None:
+        n = flat
+    else:       # no direction (a file's "vn 0 0 0", normals that cancel): the flat normal, as rt_shade.h
+        n = np.where((np.linalg.norm(n, axis=1) > 0.0)[:, None], n, flat)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n[(n * d).sum(axis=1) > 0] *= -1.0
     kd = np.array([m.diffuse for m in scene.materials], np.float64)[scene.material_ids[ids]]

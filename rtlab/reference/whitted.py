@@ -32,8 +32,15 @@ from .tracer import reference_trace
 # Tree entry of a node whose ray was not spawned (-1: spawned, missed): the kernels' RT_NO_RAY, so that
 # the two trees compare entry by entry
 NO_RAY = int(kernel_constant("RT_NO_RAY"))
-# A shadow segment ends short of the light, at the kernels' float32 RT_SHADOW_TMAX (rt_whitted.h says why)
-SHADOW_TMAX = float(np.float32(kernel_constant("RT_SHADOW_TMAX")))
+# A shadow segment ends short of the light by the kernels' RT_SHADOW_GAP_ULPS float32 ulps of the segment's and
+# the light's largest |component| (rt_whitted.h's shadow_segment_end says why)
+SHADOW_GAP_ULPS = kernel_constant("RT_SHADOW_GAP_ULPS")
+
+
+def shadow_segment_end(light: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """t where each shadow segment p + t d (d = light - p, one a row) ends: rt_whitted.h's, in float64."""
+    span = np.abs(d).max(axis=1)
+    return 1.0 - SHADOW_GAP_ULPS * 2.0 ** -24 * (1.0 + np.abs(light).max() / span)
 # Secondary and shadow rays leave the surface exactly; hits nearer than this, relative to the
 # scene's coordinates, are the ray's own surface (float64 rounding is ~1e-16 of them).
 TMIN_REL = 1e-9
@@ -103,7 +110,10 @@ class _Tracer:
             ns = ng.copy()
         else:
             nv = self.vn[self.f[tri]]
-            ns = _unit(nv[:, 0] * b0 + nv[:, 1] * u[:, None] + nv[:, 2] * v[:, None])
+            ns = nv[:, 0] * b0 + nv[:, 1] * u[:, None] + nv[:, 2] * v[:, None]
+            # no direction (a file's "vn 0 0 0", normals that cancel): the flat normal, as rt_shade.h
+            ns = np.where((np.linalg.norm(ns, axis=1) > 0.0)[:, None], ns, ng)
+            ns = _unit(ns)
             ns[_dot(ns, d) > 0.0] *= -1.0
         return p, ng, ns, front, self.scene.material_ids[tri]
 
@@ -118,7 +128,7 @@ class _Tracer:
             if self.shadows and reach.any():
                 idx = np.flatnonzero(reach)
                 length = np.linalg.norm(to_light[idx], axis=1)
-                blocked = self.trace(p[idx], to_light[idx], tmin[idx] / length, SHADOW_TMAX).tri >= 0
+                blocked = self.trace(p[idx], to_light[idx], tmin[idx] / length, shadow_segment_end(position, to_light[idx])).tri >= 0
                 reach[idx[blocked]] = False
             l = _unit(to_light)
             h = _unit(l - d)

@@ -89,6 +89,11 @@ def _vector3(value, what: str) -> np.ndarray:
     return v
 
 
+# Largest |coordinate| of a light: the shading squares a light's distance in float32 (normalize3), which
+# overflows past 1.8e19
+LIGHT_MAX_COORDINATE = 1e18
+
+
 # Smallest sine of the angle between a camera's view direction and its up vector: below it the
 # camera's right axis, up x view, is a rounding artefact (the image would be all background).
 CAMERA_MIN_UP_SINE = 1e-6
@@ -237,6 +242,10 @@ class Scene:
             if len(normals) != len(vertices):
                 raise SceneError(f"{where}: vertex_normals must hold one normal per vertex, shape "
                                  f"({len(vertices)}, 3), got {normals.shape}")
+            bad = np.flatnonzero(~np.isfinite(normals).all(axis=1))
+            if bad.size:
+                raise SceneError(f"{where}: vertex normal {bad[0]} is {tuple(normals[bad[0]].tolist())}: normals must be "
+                                 f"finite ({bad.size} of {len(normals)} are not; a zero normal is taken as the face's)")
             self.vertex_normals = np.ascontiguousarray(normals, np.float32)
         if not isinstance(self.camera, Camera):
             raise SceneError(f"{where}: camera must be an rtlab Camera, got {type(self.camera).__name__}")
@@ -244,6 +253,12 @@ class Scene:
             got = next((x for x in self.lights if not isinstance(x, Light)), None) \
                 if isinstance(self.lights, (list, tuple)) else self.lights
             raise SceneError(f"{where}: lights must be a list of rtlab Lights, got {type(got).__name__} {got!r:.40}")
+        for i, light in enumerate(self.lights):
+            position = _vector3(light.position, f"{where}: light {i}'s position")
+            if np.abs(position).max() > LIGHT_MAX_COORDINATE:
+                raise SceneError(f"{where}: light {i} at {tuple(position.tolist())} lies beyond {LIGHT_MAX_COORDINATE:g} "
+                                 f"from the origin, where float32 squares of its distance overflow and it lights "
+                                 f"nothing: move it nearer (so far, a point light is a direction)")
         self.vertices = np.ascontiguousarray(vertices, np.float32)
         self.faces = np.ascontiguousarray(faces, np.int32)
         self.material_ids = np.ascontiguousarray(ids, np.int32)
