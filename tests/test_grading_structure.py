@@ -2,9 +2,11 @@
 
 * lab 03 (rtlab.course.structure): lab 00's ``traverse_kd_stack`` copied into the stackless, short-stack
   and packet traversals got 67 / 100 (the lab-call rule reads calls, not copies). A stackless traversal
-  now keeps no more per-ray private arrays than its reference (none), the short stack no more than its
-  RT_SHORT_STACK_SIZE entries, the packet its stack in the block's local memory: read from the same
-  LLVM IR as the lab-call rule, before each compile.
+  now keeps no more per-ray indexed private storage than its reference (none), the short stack no
+  more than its RT_SHORT_STACK_SIZE entries, the packet its stack in the block's local memory: read
+  from the same LLVM IR as the lab-call rule, before each compile. The third audit's stack of 64
+  entries in structs of structs of KdStackEntry (no array type anywhere: 38 points) is counted by
+  what the code does with it, a variable index through whatever pointer.
 * lab 01 (rtlab.course.regions, rtlab.course.ptx, checks.nvcc.NvccKind): the template's stub with its
   TODO comment deleted, and texture fetches of element 0, got 30 / 30 on the nvcc tests. A stub is now
   told by its tokens; fetch_scene's PTX is followed and compared with the reference's; the shared-memory
@@ -81,11 +83,103 @@ def shortstack_in_parallel_arrays() -> str:
     return body
 
 
+# The third audit's stack: 64 KdStackEntry in structs of structs, indexed through a pointer (1 KiB)
+NESTED_TYPES = ("typedef struct { KdStackEntry a, b, c, d; } AuditS4;\n"
+                "typedef struct { AuditS4 a, b, c, d; } AuditS16;\n"
+                "typedef struct { AuditS16 a, b, c, d; } AuditS64;\n\n")
+NESTED_STACK = COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];",
+                                    "AuditS64 store;\n    KdStackEntry *stack = &store.a.a.a;   /* no array type */")
+assert NESTED_STACK != COPIED_STACK
+RESTART = region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart")
+
+
+def nested_stack(index: str, before: str = "") -> tuple[str, str]:
+    """The nested-struct stack with each ``stack[i]`` written as ``index`` (``{i}``: the index), and
+    its types with ``before`` to put ahead of the function."""
+    body = re.sub(r"stack\[([^\]]*)\]", lambda m: index.format(i=m.group(1)), NESTED_STACK)
+    return body, NESTED_TYPES + before
+
+
+LEAF_HELPER = ("/* Whether the walk ends after a leaf: a hit inside the cell, or no cell left on the segment */\n"
+               "RT_FN int leaf_ends_walk(const Hit *hit, KdSegment *seg, float t_exit)\n{\n"
+               "    float t_hit = t_cull(hit->t);\n    int inside = t_hit < seg->tmax;\n"
+               "    return inside || !kd_next_restart(seg, t_exit);\n}\n\n")
+
+
+def restart_with_a_helper() -> str:
+    """A legitimate kd-restart written otherwise: a couple more scalars (a leaf count, the root node
+    loaded once) and a small helper of its own for the end of a leaf (LEAF_HELPER)."""
+    body = RESTART.replace("    int planes = 0;\n", "    int planes = 0;\n    int leaves = 0;\n"
+                                                   "    const int2 root = load_node(nodes, 0);\n", 1)
+    body = body.replace("int2 n = load_node(nodes, 0);", "int2 n = root;", 1)
+    body = body.replace("            intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);\n",
+                        "            intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);\n            ++leaves;\n", 1)
+    body = body.replace("if (t_cull(hit->t) < seg.tmax || !kd_next_restart(&seg, t_exit))",
+                        "if (leaf_ends_walk(hit, &seg, t_exit))", 1)
+    assert "leaf_ends_walk(hit" in body and "++leaves" in body and "= root;" in body
+    return body
+
+
+def restart_reading_by_axis() -> str:
+    """A legitimate kd-restart that reads the ray by axis: per-axis arrays of its origin and inverse
+    direction (24 B) and a float4's lane picked by a variable (16 B): 40 B, within the slack."""
+    return ("    float o[3] = {ray->o.x, ray->o.y, ray->o.z};\n"
+            "    float inv[3] = {ray->inv_d.x, ray->inv_d.y, ray->inv_d.z};\n    float4 lo = scene_min;\n"
+            "    int ax = hit->tri & 3;\n"
+            "    float seen = ax < 3 ? o[ax] + inv[ax] + lo[ax] : 0.0f;\n    (void)seen;\n" + RESTART)
+
+
+NESTED_REFUSED = (r"^traverse_kd_{f} keeps a per-ray private array store, AuditS64 indexed by a variable = 1024 B, "
+                  r"where the reference traverse_kd_{f} keeps {ref}")
+
 # (function, body, text before the function, an edit of the file) -> the refusal, or None for a pass
 FORMS = {
     "reference": ("traverse_kd_shortstack", None, "", None, None),
     "restart with scalars": ("traverse_kd_restart", restart_with_scalars(), "", None, None),
     "short stack in two arrays": ("traverse_kd_shortstack", shortstack_in_parallel_arrays(), "", None, None),
+    "restart with scalars and a helper": ("traverse_kd_restart", restart_with_a_helper(), LEAF_HELPER, None, None),
+    "restart reading the ray by axis": ("traverse_kd_restart", restart_reading_by_axis(), "", None, None),
+    # the third audit's nested-struct stack, and other ways to index private memory without an array type
+    "nested-struct stack as restart (the audit's)": (
+        "traverse_kd_restart", NESTED_STACK, NESTED_TYPES, None,
+        NESTED_REFUSED.format(f="restart", ref=r"none \(0 B\): kd-restart is stackless")),
+    "nested-struct stack as short stack (the audit's)": (
+        "traverse_kd_shortstack", NESTED_STACK, NESTED_TYPES, None,
+        NESTED_REFUSED.format(f="shortstack", ref=r"160 B \(its stack, \[4 x KdShortStackEntry\]\): a short stack")),
+    "nested-struct stack as ropes": (
+        "traverse_kd_ropes", NESTED_STACK, NESTED_TYPES, None, NESTED_REFUSED.format(f="ropes", ref=r"none \(0 B\)")),
+    "nested-struct stack, pointer arithmetic": (
+        "traverse_kd_restart", *nested_stack("(*(stack + ({i})))"), None,
+        NESTED_REFUSED.format(f="restart", ref="none")),
+    "nested-struct stack, through an integer": (
+        "traverse_kd_restart", *nested_stack("(*(KdStackEntry *)((ulong)stack + (ulong)({i}) * sizeof(KdStackEntry)))"),
+        None, NESTED_REFUSED.format(f="restart", ref="none")),
+    "nested-struct stack, a helper indexes it": (
+        "traverse_kd_restart", *nested_stack("(*kd_at(stack, {i}))",
+                                             "RT_FN KdStackEntry *kd_at(KdStackEntry *s, int i) { return &s[i]; }\n\n"),
+        None, NESTED_REFUSED.format(f="restart", ref="none")),
+    "nested-struct stack, its pointer in a struct": (
+        "traverse_kd_restart",
+        NESTED_STACK.replace("KdStackEntry *stack = &store.a.a.a;",
+                             "struct { KdStackEntry *p; int pad; } at;\n    at.p = &store.a.a.a;")
+                    .replace("stack[", "at.p["),
+        NESTED_TYPES, None, NESTED_REFUSED.format(f="restart", ref="none")),
+    "a union indexed through a pointer": (
+        "traverse_kd_ropes",
+        NESTED_STACK.replace("AuditS64 store;\n    KdStackEntry *stack = &store.a.a.a;",
+                             "union { AuditS64 s; int first; } u;\n    KdStackEntry *stack = &u.s.a.a.a;"),
+        NESTED_TYPES, None,
+        r"^traverse_kd_ropes keeps a per-ray private array u, a union indexed by a variable = 1024 B"),
+    "recursive walk": (
+        "traverse_kd_restart", "    kd_walk_rec(RT_SCENE_ARGS, 0, ray, hit, any_hit);\n",
+        "RT_FN void kd_walk_rec(RT_SCENE_PARAMS, int node, const Ray *ray, Hit *hit, int any_hit)\n{\n"
+        "    int2 n = load_node(nodes, node);\n    if (kd_is_leaf(n)) {\n"
+        "        intersect_leaf(RT_SCENE_ARGS, n, ray, hit, any_hit);\n        return;\n    }\n"
+        "    kd_walk_rec(RT_SCENE_ARGS, n.x >> 2, ray, hit, any_hit);\n"
+        "    kd_walk_rec(RT_SCENE_ARGS, (n.x >> 2) + 1, ray, hit, any_hit);\n}\n\n", None,
+        r"^traverse_kd_restart keeps a per-ray stack of call frames: kd_walk_rec calls kd_walk_rec \(recursion, in "
+        r"kd_walk_rec, which traverse_kd_restart calls\), where the reference traverse_kd_restart calls nothing "
+        r"recursively: kd-restart is stackless"),
     "copied stack as restart": (
         "traverse_kd_restart", COPIED_STACK, "", None,
         r"^traverse_kd_restart keeps a per-ray private array stack, \[\d+ x KdStackEntry\] = \d+ B, where the "
@@ -167,6 +261,7 @@ def test_structure_allowances_come_from_the_reference():
     assert rules["traverse_kd_shortstack"]["largest"][:2] == ["stack", "[4 x KdShortStackEntry]"]
     assert rules["traverse_kd_packet"]["local_stores"] and rules["traverse_kd_packet"]["local"][1] > 0
     assert not any(rules[f]["local_stores"] for f in rules if f != "traverse_kd_packet")
+    assert not any(rules[f]["recursive"] for f in rules)
     assert structure_rules("00_primary")["functions"] == {}      # lab 00's stack traversal: no rule
 
 
@@ -212,6 +307,62 @@ def test_structure_measure_reads_llvm_types():
     assert size_of(types.parse("<3 x float>")) == 16 and array_bytes(types.parse("<8 x i32>")) == 32
     locals_ = {loc.name: loc.bytes for loc in read_program(ir).functions["f"]["locals"]}
     assert locals_ == {"ray": 0, "st": 80, "t": 12, "n": 24}
+
+
+def test_indexed_storage_is_read_from_what_the_code_does():
+    """A local counts by the bytes a variable index reaches, whatever its type: a struct indexed through
+    a pointer kept in another local, or passed to a helper that indexes its parameter (all of it); a
+    vector's lane picked by a variable (that vector); not a struct read at constant offsets only, nor
+    one passed to a helper that reads a field."""
+    from rtlab.course.structure import read_program
+    ir = ('%struct.E = type { i32, float, float, float }\n'
+          '%struct.S4 = type { %struct.E, %struct.E, %struct.E, %struct.E }\n'
+          '%struct.P = type { <4 x float>, <4 x float>, float }\n'
+          'define internal ptr @at(ptr noundef %s, i32 noundef %i) #0 {\nentry:\n'
+          '  %s.addr = alloca ptr, align 8\n  %i.addr = alloca i32, align 4\n'
+          '  store ptr %s, ptr %s.addr, align 8\n  store i32 %i, ptr %i.addr, align 4\n'
+          '  %0 = load ptr, ptr %s.addr, align 8\n  %1 = load i32, ptr %i.addr, align 4\n'
+          '  %idx = sext i32 %1 to i64\n  %e = getelementptr inbounds %struct.E, ptr %0, i64 %idx\n'
+          '  ret ptr %e\n}\n'
+          'define internal float @first(ptr noundef %s) #0 {\nentry:\n  %s.addr = alloca ptr, align 8\n'
+          '  store ptr %s, ptr %s.addr, align 8\n  %0 = load ptr, ptr %s.addr, align 8\n'
+          '  %t = getelementptr inbounds %struct.E, ptr %0, i32 0, i32 1\n  %1 = load float, ptr %t, align 4\n'
+          '  ret float %1\n}\n'
+          'define internal void @f(i32 noundef %k) #0 {\nentry:\n'
+          '  %k.addr = alloca i32, align 4\n  %kept = alloca %struct.S4, align 4\n  %p = alloca ptr, align 8\n'
+          '  %passed = alloca %struct.S4, align 4\n  %fixed = alloca %struct.S4, align 4\n'
+          '  %read = alloca %struct.S4, align 4\n  %lanes = alloca %struct.P, align 16\n'
+          '  store i32 %k, ptr %k.addr, align 4\n  %0 = load i32, ptr %k.addr, align 4\n'
+          '  %a = getelementptr inbounds %struct.S4, ptr %kept, i32 0, i32 0\n  store ptr %a, ptr %p, align 8\n'
+          '  %1 = load ptr, ptr %p, align 8\n  %idx = sext i32 %0 to i64\n'
+          '  %e = getelementptr inbounds %struct.E, ptr %1, i64 %idx\n  store i32 1, ptr %e, align 4\n'
+          '  %b = getelementptr inbounds %struct.S4, ptr %passed, i32 0, i32 0\n'
+          '  %call = call ptr @at(ptr noundef %b, i32 noundef %0)\n'
+          '  %c = getelementptr inbounds %struct.S4, ptr %fixed, i32 0, i32 3\n  store i32 2, ptr %c, align 4\n'
+          '  %r = getelementptr inbounds %struct.S4, ptr %read, i32 0, i32 2\n'
+          '  %call2 = call float @first(ptr noundef %r)\n'
+          '  %v = getelementptr inbounds %struct.P, ptr %lanes, i32 0, i32 1\n'
+          '  %2 = load <4 x float>, ptr %v, align 16\n  %3 = extractelement <4 x float> %2, i32 %0\n'
+          '  ret void\n}\n')
+    locals_ = {loc.name: (loc.bytes, loc.indexed) for loc in read_program(ir).functions["f"]["locals"]}
+    assert locals_ == {"k.addr": (0, False), "kept": (64, True), "p": (0, False), "passed": (64, True),
+                       "fixed": (0, False), "read": (0, False), "lanes": (16, True)}, locals_
+
+
+def test_lab03_nested_struct_stack_scores_nothing(tmp_path):
+    """The third audit's submission (lab 00's walk in kd-restart and the short stack, its stack 64
+    KdStackEntry in structs of structs: 38 / 38 on its tests): both traversals are refused, saying so."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    for f in ("traverse_kd_restart", "traverse_kd_shortstack"):         # rt_kd_shortstack.h includes
+        replace_body(sub / SHARED / FILES[f], f, NESTED_STACK,             # rt_kd_restart.h: its types
+                     NESTED_TYPES if f == "traverse_kd_restart" else "")
+    report = grade(STEP03, sub, tests=["trace_restart", "trace_shortstack"])
+    for name, f in (("trace_restart", "restart"), ("trace_shortstack", "shortstack")):
+        t = report.test(name)
+        assert t.score == 0 and t.status == "refused", (name, t.status, t.output)
+        assert f"traverse_kd_{f} keeps a per-ray private array store, AuditS64 indexed by a variable = 1024 B" \
+            in t.output, t.output
+    assert report.score == 0
 
 
 def test_lab03_copied_stack_scores_nothing_and_a_restart_of_its_own_passes(tmp_path):

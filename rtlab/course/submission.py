@@ -155,35 +155,13 @@ def _include_problem(args, headers) -> str | None:
     return f"#include {first.text}: only #include \"NAME.h\" with one of the lab's headers is allowed"
 
 
-def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float | None = None) -> list[Refusal]:
-    """Everything in a submitted file (decoded as Latin-1) that breaks the rule, in line order (at
-    most MAX_REFUSALS, then a count of the rest)."""
-    try:
-        toks = tokenize(text, deadline_at)
-    except TimeoutError as e:
-        return [Refusal(relpath, None, f"not read: {e}")]
+def _directive_problems(directives, relpath: str, rules: SourceRules) -> list[Refusal]:
+    """What the file's directives break of the rule (see the module docstring)."""
     problems: list[Refusal] = []
 
     def refuse(line, why):
         problems.append(Refusal(relpath, line, why))
 
-    for t in toks:
-        if t.kind == "ambiguous":
-            refuse(t.line, f"{t.why}: compilers read this differently, so it is not allowed")
-        elif t.kind == "nonascii":
-            refuse(t.line, "a byte outside ASCII outside a comment or a string (a byte-order mark, an accented "
-                           "letter, a Unicode quote or space?): kernel code is ASCII; save the file as ASCII or UTF-8 "
-                           "without a byte-order mark, with non-ASCII text only in comments")
-        elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
-            refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
-        elif t.kind == "ident" and t.text in WORK_INSTRUMENTS and relpath not in rules.names_used.get(t.text, ()):
-            refuse(t.line, f"{t.text} is the work budget's counter (rt_memory.h): submitted kernels read the scene "
-                           f"through the lab's loaders and leave the counting to them")
-        elif t.kind == "punct" and t.value == "##":
-            refuse(t.line, "token pasting (##) is not allowed in submitted kernels")
-        if len(problems) > 4 * MAX_REFUSALS:
-            break
-    directives, _ = split_directives(toks)
     own = rules.defined_by_file.get(relpath, frozenset())
     testable = rules.testable(relpath) | {d.args[0].text for d in directives
                                            if d.name == "define" and d.args and d.args[0].kind == "ident"}
@@ -213,6 +191,39 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
             if users and name not in own:
                 refuse(d.line, f"#{d.name} {name}: {name} is used by {users[0]}; a submitted file may define only "
                                f"new names of its own (rename yours)")
+    return problems
+
+
+def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float | None = None) -> list[Refusal]:
+    """Everything in a submitted file (decoded as Latin-1) that breaks the rule, in line order (at
+    most MAX_REFUSALS, then a count of the rest)."""
+    try:
+        toks = tokenize(text, deadline_at)
+    except TimeoutError as e:
+        return [Refusal(relpath, None, f"not read: {e}")]
+    problems: list[Refusal] = []
+
+    def refuse(line, why):
+        problems.append(Refusal(relpath, line, why))
+
+    for t in toks:
+        if t.kind == "ambiguous":
+            refuse(t.line, f"{t.why}: compilers read this differently, so it is not allowed")
+        elif t.kind == "nonascii":
+            refuse(t.line, "a byte outside ASCII outside a comment or a string (a byte-order mark, an accented "
+                           "letter, a Unicode quote or space?): kernel code is ASCII; save the file as ASCII or UTF-8 "
+                           "without a byte-order mark, with non-ASCII text only in comments")
+        elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
+            refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
+        elif t.kind == "ident" and t.text in WORK_INSTRUMENTS and relpath not in rules.names_used.get(t.text, ()):
+            refuse(t.line, f"{t.text} is the work budget's counter (rt_memory.h): submitted kernels read the scene "
+                           f"through the lab's loaders and leave the counting to them")
+        elif t.kind == "punct" and t.value == "##":
+            refuse(t.line, "token pasting (##) is not allowed in submitted kernels")
+        if len(problems) > 4 * MAX_REFUSALS:
+            break
+    directives, _ = split_directives(toks)
+    problems += _directive_problems(directives, relpath, rules)
     problems.sort(key=lambda r: r.line or 0)
     if len(problems) > MAX_REFUSALS:
         rest = len(problems) - MAX_REFUSALS

@@ -1,0 +1,219 @@
+"""Which private storage a program's LLVM IR reaches at a variable offset: the structure rule's reading
+(rtlab.course.structure) of where a traversal keeps a stack. A stack is a variable index into memory,
+whatever the type of the memory: an array, structs of structs, a union, a copy of the Ray. One pass
+over the IR (before any optimisation: every local an ``alloca``) follows each local's address through
+whatever derives a pointer from it, and each function's summary says which of its parameters it
+indexes or returns (:func:`indexed_allocas`).
+"""
+from __future__ import annotations
+
+import re
+
+from .lab_calls import _DEFINE_RE
+from .llvm_types import TypeTable, size_of
+
+_ALLOCA_RE = re.compile(r'^\s*(%"[^"]*"|%[\w.$-]+) = alloca (?:inalloca )?(.*)$', re.M)
+
+
+def bodies(ir: str):
+    """(symbol, text from the define's parameters to its closing brace) of each function defined."""
+    starts = list(_DEFINE_RE.finditer(ir))
+    for k, m in enumerate(starts):
+        end = ir.find("\n}", m.end())
+        yield m.group(2), ir[m.end():end if end >= 0 else (starts[k + 1].start() if k + 1 < len(starts) else len(ir))]
+
+
+# --------------------------------------------------------------------------------------------------
+# which private storage is indexed: a variable offset into an alloca, through whatever pointer
+# --------------------------------------------------------------------------------------------------
+_VALUE_RE = re.compile(r'%"[^"]*"|%[\w.$-]+')
+_INSTR_RE = re.compile(r'^\s+(?:(%"[^"]*"|%[\w.$-]+) = )?(?:(?:tail|musttail|notail) )?([a-z]\w*)\b(.*)$')
+_CALLEE_RE = re.compile(r'@("?)([\w.$]+)\1\(')
+_HARMLESS_INTRINSICS = ("llvm.lifetime.", "llvm.dbg.", "llvm.assume", "llvm.experimental.noalias",
+                        "llvm.invariant.", "llvm.var.annotation")
+
+
+def _split_top(text: str) -> list[str]:
+    """``text`` split at the commas outside any (), [], {}, <>."""
+    parts, depth, start = [], 0, 0
+    for i, c in enumerate(text):
+        if c in "([{<":
+            depth += 1
+        elif c in ")]}>":
+            depth -= 1
+        elif c == "," and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    parts.append(text[start:])
+    return parts
+
+
+def _inside(text: str, open_at: int) -> str:
+    """The text between the parenthesis at ``open_at`` and its match."""
+    depth = 0
+    for i in range(open_at, len(text)):
+        depth += text[i] == "("
+        depth -= text[i] == ")"
+        if depth == 0:
+            return text[open_at + 1:i]
+    return text[open_at + 1:]
+
+
+# Why long: one data-flow pass to a fixed point over every instruction kind that moves an address (GEP,
+# casts, selects, phis, loads and stores through locals, calls with per-function summaries): split, each
+# part would need the whole state.
+def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | None]:
+    """(function symbol, alloca) -> the bytes of it reached at a variable offset (None: all of it),
+    for every private variable that the program reaches so: a ``getelementptr`` with a non-constant
+    index or a ``memcpy``/``memset`` of variable length (all of it), a vector's lane by a variable
+    (that vector's bytes), on a pointer derived from it however: constant GEPs, casts, selects, a
+    pointer kept in another local and loaded again, a parameter of a function it is passed to (each
+    function's summary says which of its parameters it indexes or returns). What the reading cannot
+    follow counts as indexed: the address turned into an integer, stored anywhere but a local,
+    passed to a function that is only declared (an OpenCL builtin), or kept in a local whose own
+    address is passed on. Flow-insensitive, to a fixed point: a stack is a variable index into
+    memory, whatever the type of that memory says."""
+    names = set(types.text)
+    funcs = []
+    for symbol, body in bodies(ir):
+        params = [next(iter([v for v in _VALUE_RE.findall(p) if v not in names][-1:]), None)
+                  for p in _split_top(_inside("(" + body, 0))]
+        code = []
+        for line in body.split("\n")[1:]:
+            m = _INSTR_RE.match(line)
+            if m:
+                code.append((m.group(1), m.group(2), m.group(3).split(", !")[0]))
+        funcs.append((symbol, params, code))
+    defined = {symbol for symbol, _, _ in funcs}
+    summary = {symbol: ({}, set()) for symbol in defined}    # ({parameter: bytes indexed}, parameters returned)
+    marked: dict = {}
+
+    def vals(text: str) -> list[str]:
+        return [v for v in _VALUE_RE.findall(text) if v not in names]
+
+    def state():
+        return sorted(marked.items(), key=str), sorted(((k, sorted(a.items(), key=str), sorted(b))
+                                                         for k, (a, b) in summary.items()), key=str)
+
+    for _ in range(len(funcs) + 2):
+        before = state()
+        for symbol, params, code in funcs:
+            taint = {p: {("p", i)} for i, p in enumerate(params) if p}     # value -> what it points into
+            contents: dict = {}                 # source -> sources whose addresses it holds
+            vec_from: dict = {}                 # vector value -> the memory it was loaded from
+            indexed_params, returned = summary[symbol]
+
+            def t(v):
+                return taint.get(v, set()) if v else set()
+
+            def mark(srcs, extent=None):
+                for src in list(srcs):
+                    table, key = (marked, (symbol, src[1])) if src[0] == "a" else (indexed_params, src[1])
+                    old = table.get(key, 0)
+                    table[key] = None if extent is None or old is None else max(old, extent)
+
+            def held(srcs):
+                """What the memory of ``srcs`` holds, and what that holds, on down."""
+                out, todo = set(), list(srcs)
+                while todo:
+                    for c in contents.get(todo.pop(), ()):
+                        if c not in out:
+                            out.add(c)
+                            todo.append(c)
+                return out
+
+            def add(res, srcs, table=taint):
+                if res and srcs and not srcs <= table.setdefault(res, set()):
+                    table[res] |= srcs
+                    return True
+                return False
+
+            changed = True
+            while changed:
+                changed = False
+                for res, op, rest in code:
+                    if op == "alloca":
+                        changed |= add(res, {("a", res)})
+                    elif op == "load":
+                        v = vals(rest)
+                        srcs = t(v[-1]) if v else set()
+                        changed |= add(res, set().union(*(contents.get(s, set()) for s in srcs)))
+                        changed |= add(res, set(srcs), vec_from)
+                    elif op == "store":
+                        parts = _split_top(rest)
+                        value, addr = vals(parts[0]), vals(parts[1]) if len(parts) > 1 else []
+                        tv, ta = t(value[-1] if value else None), t(addr[-1] if addr else None)
+                        if tv:
+                            if not ta or any(s[0] == "p" for s in ta):
+                                mark(tv | held(tv))             # a local's address leaves the frame
+                            for s in ta:
+                                if not tv <= contents.setdefault(s, set()):
+                                    contents[s] |= tv
+                                    changed = True
+                    elif op == "getelementptr":
+                        parts = _split_top(rest)
+                        base = vals(parts[1]) if len(parts) > 1 else []
+                        tb = t(base[-1] if base else None)
+                        changed |= add(res, set(tb))
+                        if any(vals(p) for p in parts[2:]):
+                            mark(tb)
+                    elif op in ("extractelement", "insertelement"):
+                        parts = _split_top(rest)
+                        lane = parts[1 if op == "extractelement" else 2] if len(parts) > 1 else ""
+                        vec = vals(parts[0])
+                        if vals(lane) and vec:
+                            try:
+                                extent = size_of(types.parse(parts[0].strip().rsplit(" ", 1)[0]))
+                            except (IndexError, ValueError, AssertionError):
+                                extent = None
+                            mark(vec_from.get(vec[-1], set()), extent)
+                        changed |= add(res, set().union(*(t(v) for v in vals(rest))))
+                        if vec:
+                            changed |= add(res, set(vec_from.get(vec[-1], set())), vec_from)
+                    elif op == "ptrtoint":
+                        srcs = set().union(*(t(v) for v in vals(rest)))
+                        mark(srcs)
+                        changed |= add(res, srcs)
+                    elif op == "call":
+                        m = _CALLEE_RE.search(rest)
+                        if not m:
+                            mark(set().union(*(t(v) for v in vals(rest))))
+                            continue
+                        callee = m.group(2)
+                        args = [vals(a) for a in _split_top(_inside(rest, m.end() - 1))]
+                        targs = [t(a[-1]) if a else set() for a in args]
+                        if callee.startswith(_HARMLESS_INTRINSICS):
+                            continue
+                        if callee.startswith(("llvm.memcpy", "llvm.memmove", "llvm.memset")):
+                            if len(args) > 2 and args[2]:
+                                mark(set().union(*targs[:2]))       # a variable length
+                            elif callee.startswith(("llvm.memcpy", "llvm.memmove")) and len(targs) > 1:
+                                moved = held(targs[1])
+                                if moved and (not targs[0] or any(s[0] == "p" for s in targs[0])):
+                                    mark(moved)
+                                for s in targs[0]:
+                                    if not moved <= contents.setdefault(s, set()):
+                                        contents[s] |= moved
+                                        changed = True
+                            continue
+                        for i, ta in enumerate(targs):
+                            if not ta:
+                                continue
+                            mark(held(ta))                      # pointers kept in what it passes on
+                            if callee not in summary:
+                                mark(ta)
+                            elif i in summary[callee][0]:
+                                mark(ta, summary[callee][0][i])
+                            if callee in summary and i in summary[callee][1]:
+                                changed |= add(res, set(ta))
+                    elif op == "ret":
+                        for v in vals(rest):
+                            returned |= {s[1] for s in t(v) if s[0] == "p"}
+                    elif res:
+                        changed |= add(res, set().union(*(t(v) for v in vals(rest))))
+                        if op == "shufflevector":              # a float3 is loaded as 4 lanes, then shuffled
+                            changed |= add(res, set().union(*(vec_from.get(v, set()) for v in vals(rest))),
+                                           vec_from)
+        if state() == before:
+            break
+    return marked
