@@ -519,8 +519,11 @@ def test_zero_vertex_normals_shade_as_the_face(backend):
 def test_lights_and_normals_the_shading_cannot_use_are_errors():
     floor = np.array([[-4.0, 0, -4], [4, 0, -4], [4, 0, 4], [-4, 0, 4]])
     faces = np.array([[0, 2, 1], [0, 3, 2]])
-    with pytest.raises(RtlabError, match="light 0 at .* lies beyond 1e\\+18 from the origin"):
-        scene_from_arrays(floor, faces, lights=[Light((2e19, 1.0, 0.0))])
+    far = scene_from_arrays(floor, faces, lights=[Light((2e19, 1.0, 0.0))])     # traces; renders refuse it
+    from rtlab.device.rendering import render
+    for draw in (render_whitted, render):
+        with pytest.raises(RtlabError, match="light 0 at .* lies beyond 1e\\+18 from the origin"):
+            draw(far, size=8)
     with pytest.raises(RtlabError, match="vertex normal 1 is .*normals must be finite"):
         scene_from_arrays(floor, faces, vertex_normals=[[0, 1, 0], [np.nan, 1, 0], [0, 1, 0], [0, 1, 0]])
 

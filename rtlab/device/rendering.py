@@ -46,6 +46,7 @@ def render(scene: Scene, backend=None, variant: Variant | None = None, size: int
     if not hasattr(backend, "compile"):
         backend = get_backend(backend, device)
     scene = require_scene(scene)
+    scene.check_lights()
     repeats = check_count(repeats, "repeats")
     variant = resolve_variant(variant, backend)
     camera = scene.camera if size is None else scene.camera.with_size(size)

@@ -140,6 +140,7 @@ def render_whitted(scene: Scene, backend=None, variant: Variant | None = None, s
     repeats = check_count(repeats, "repeats")
     check_bounces(bounces)
     scene.check_materials()
+    scene.check_lights()
     variant = resolve_variant(variant, backend)
     tree = bounces > 0 or schedule == "wavefront"
     step = program_for("bounces" if tree else "shadows", variant, lab)

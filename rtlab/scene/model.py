@@ -254,15 +254,21 @@ class Scene:
                 if isinstance(self.lights, (list, tuple)) else self.lights
             raise SceneError(f"{where}: lights must be a list of rtlab Lights, got {type(got).__name__} {got!r:.40}")
         for i, light in enumerate(self.lights):
-            position = _vector3(light.position, f"{where}: light {i}'s position")
-            if np.abs(position).max() > LIGHT_MAX_COORDINATE:
-                raise SceneError(f"{where}: light {i} at {tuple(position.tolist())} lies beyond {LIGHT_MAX_COORDINATE:g} "
-                                 f"from the origin, where float32 squares of its distance overflow and it lights "
-                                 f"nothing: move it nearer (so far, a point light is a direction)")
+            _vector3(light.position, f"{where}: light {i}'s position")
         self.vertices = np.ascontiguousarray(vertices, np.float32)
         self.faces = np.ascontiguousarray(faces, np.int32)
         self.material_ids = np.ascontiguousarray(ids, np.int32)
         return self
+
+    def check_lights(self) -> None:
+        """SceneError naming the first light too far for the shading (LIGHT_MAX_COORDINATE). The renders
+        check it, not the scene: a scene far out still traces (rtlab.trace), lit or not."""
+        for i, light in enumerate(self.lights):
+            position = _vector3(light.position, f"scene {self.name!r}: light {i}'s position")
+            if np.abs(position).max() > LIGHT_MAX_COORDINATE:
+                raise SceneError(f"scene {self.name!r}: light {i} at {tuple(position.tolist())} lies beyond "
+                                 f"{LIGHT_MAX_COORDINATE:g} from the origin, where float32 squares of its distance "
+                                 f"overflow and it lights nothing: move it nearer (so far, a point light is a direction)")
 
     def check_materials(self) -> None:
         """SceneError naming the first material whose numbers the shading cannot use (material_problem);
