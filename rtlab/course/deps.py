@@ -90,9 +90,11 @@ def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
     as the compiler reads the code (rtlab.course.lab_calls), and what each function keeps where
     (rtlab.course.structure): local variables keep their names, and OpenCL's address spaces their
     numbers (clang's fake map on the host target: 1 global, 2 constant, 3 local; the target, and so
-    every macro the kernels test, stays the host's)."""
+    every macro the kernels test, stays the host's, for the host's own CPU as PoCL compiles for it:
+    ``-march=native``, so that a CPU macro the kernels use, ``__AVX__``, has PoCL's value here too and no
+    branch on it is dead here and live there)."""
     return _run_clang(source, include_dirs, defines, "opencl",
-                      ["-emit-llvm", "-S", "-o", "-", "-Xclang", "-disable-llvm-passes",
+                      ["-march=native", "-emit-llvm", "-S", "-o", "-", "-Xclang", "-disable-llvm-passes",
                        "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
                        "-fno-discard-value-names", "-w"])
 

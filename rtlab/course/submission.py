@@ -11,6 +11,11 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
 * ``#define``/``#undef`` of names of the file's own (new names, or what its template defines): a name
   the rest of the kernel sources use (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
+* no name a compiler or the OpenCL runtime provides that the lab's kernel sources do not use: reserved
+  names (``__AVX__``, ``__CLANG_ATOMIC_LLONG_LOCK_FREE``) and the runtime's (``POCL_...``, extension and
+  ``CLK_`` enumeration macros, ``HALF_...``). Their values differ between the clang that the rules
+  below read the code with and PoCL's compile, and ``if (sizeof(STR(POCL_DEVICE_ADDRESS_BITS)) < 8)``
+  is a constant clang folds away, with the call behind it, where PoCL runs it;
 * conditionals (``#if``, ``#ifdef``...) that test only the lab's own macros (those the kernel sources
   define), those the file's reference tests, and the file's own: the rules that read the code as the
   compiler does (rtlab.course.lab_calls, rtlab.course.structure) run clang beside the compile, and a
@@ -37,6 +42,7 @@ empty, UTF-16 (NUL bytes), a link or not a regular file is refused with a messag
 from __future__ import annotations
 
 import os
+import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +74,9 @@ FORBIDDEN_IDENTIFIERS = {
 # rt_shade.h read a hit's vertices uncounted) may.
 WORK_INSTRUMENTS = frozenset({"rt_work", "rt_counted", "RtNodeList", "RtFloat4List", "RtIntList", "RT_COUNT_WORK",
                               "load_hit_vertex"})
+# Names a compiler or the OpenCL runtime provides (besides reserved ones): the runtime's own, extension
+# macros and the enumerations and constants that depend on them
+RUNTIME_NAME_RE = re.compile(r"(?:POCL_|CLK_|cl_|cles_|HALF_)\w*|M_\w+_H\Z")
 MAX_REFUSALS = 40       # refusals listed for one file (a file of 10^5 trigraphs is refused in one message)
 
 
@@ -155,6 +164,23 @@ def _include_problem(args, headers) -> str | None:
     return f"#include {first.text}: only #include \"NAME.h\" with one of the lab's headers is allowed"
 
 
+# Reserved names that are the languages' own keywords, the same in every compiler (OpenCL C's address
+# spaces and access qualifiers, GNU spellings of C's keywords)
+LANGUAGE_KEYWORDS = frozenset({
+    "__kernel", "__global", "__local", "__constant", "__private", "__generic", "__read_only", "__write_only",
+    "__read_write", "__attribute__", "__attribute", "__restrict", "__restrict__", "__inline", "__inline__",
+    "__const", "__const__", "__signed", "__signed__", "__volatile", "__volatile__", "__alignof", "__alignof__",
+    "__typeof", "__typeof__", "__extension__", "__func__"})
+
+
+def _provided_name(name: str) -> bool:
+    """Whether a name is one a compiler or the runtime provides: reserved (``__x``, ``_X``; the languages'
+    keywords aside: LANGUAGE_KEYWORDS) or the runtime's (RUNTIME_NAME_RE)."""
+    if name in LANGUAGE_KEYWORDS:
+        return False
+    return name.startswith("__") or (name[:1] == "_" and name[1:2].isupper()) or bool(RUNTIME_NAME_RE.match(name))
+
+
 def _directive_problems(directives, relpath: str, rules: SourceRules) -> list[Refusal]:
     """What the file's directives break of the rule (see the module docstring)."""
     problems: list[Refusal] = []
@@ -215,6 +241,10 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
                            "without a byte-order mark, with non-ASCII text only in comments")
         elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
             refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
+        elif t.kind == "ident" and _provided_name(t.text) and t.text not in rules.names_used:
+            refuse(t.line, f"{t.text} is a name the compiler or the OpenCL runtime provides, which the lab's kernels "
+                           f"do not use: its value differs between the compiler that reads your code for the grader "
+                           f"and the one that runs it, so submitted kernels may not depend on it")
         elif t.kind == "ident" and t.text in WORK_INSTRUMENTS and relpath not in rules.names_used.get(t.text, ()):
             refuse(t.line, f"{t.text} is the work budget's counter (rt_memory.h): submitted kernels read the scene "
                            f"through the lab's loaders and leave the counting to them")
