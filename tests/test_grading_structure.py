@@ -555,21 +555,24 @@ def test_lab03_template_still_compiles_its_stubs_are_not_refused(tmp_path):
 @pytest.mark.parametrize("guard", [
     "sizeof(MY_XSTR(POCL_DEVICE_ADDRESS_BITS)) < 8",       # "64" under PoCL, the name itself under the rules' clang
     "__CLANG_ATOMIC_LLONG_LOCK_FREE == 2",                   # 2 under PoCL, 1 there: no # operator, no directive
-    "sizeof(MY_XSTR(__AVX__)) == 2"])                        # a CPU macro the kernels use (rt_lanes.h)
+    "sizeof(MY_XSTR(LLVM_15_0)) == 1",                       # PoCL's own _kernel.h defines it empty
+    "__AVX__ == 1"])                                         # a CPU macro the kernels use (rt_lanes.h)
 def test_code_behind_a_value_the_two_compilers_disagree_on_is_seen(guard, tmp_path):
     """The fourth audit: a constant condition on a macro whose value differs between the clang that reads
     the code for the rules and PoCL's compile is folded away, with lab 00's walk behind it, where PoCL
-    runs it (67 / 100 for lab 03 with no traversal written). The runtime's and reserved names the kernels
-    do not use are refused as text; a CPU macro the kernels use has PoCL's value in the rules' clang
-    (-march=native), so the copied walk behind it is seen and refused."""
+    runs it (67 / 100 for lab 03 with no traversal written; the fifth audit: PoCL's own LLVM_15_0). The
+    # operator, and the runtime's and reserved names the kernels do not use, are refused as text; a CPU
+    macro the kernels use has PoCL's value in the rules' clang (-march=native), so the copied walk
+    behind it is seen and refused."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     replace_body(path, "traverse_kd_restart", f"    if ({guard}) {{\n{COPIED_STACK}\n    }}\n    return;",
-                 "#define MY_STR(x) #x\n#define MY_XSTR(x) MY_STR(x)\n")
+                 "#define MY_STR(x) #x\n#define MY_XSTR(x) MY_STR(x)\n" if "MY_XSTR" in guard else "")
     t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
     assert t.score == 0, t.output
-    named = "POCL_DEVICE_ADDRESS_BITS" if "POCL" in guard else "__CLANG_ATOMIC_LLONG_LOCK_FREE" if "LOCK" in guard else None
-    if named:
-        assert f"{named} is a name the compiler or the OpenCL runtime provides" in t.output, t.output
+    if "MY_XSTR" in guard:
+        assert "the # operator (a macro argument made a string) is not allowed" in t.output, t.output
+    elif "LOCK" in guard:
+        assert "__CLANG_ATOMIC_LLONG_LOCK_FREE is a name the compiler or the OpenCL runtime provides" in t.output
     else:
         assert "traverse_kd_restart keeps a per-ray private array stack" in t.output, t.output

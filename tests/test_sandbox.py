@@ -408,8 +408,12 @@ def test_conditionals_test_only_the_labs_macros():
     # the languages' own keywords and the names the lab's kernels use stay allowed
     keywords = text.replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n    __private int k = 0; (void)k;\n", 1)
     assert check_source(keywords, rel, rules) == []
+    stringized = text.replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n#define MY_STR(x) #x\n", 1)
+    assert [p.reason.split(" (")[0] for p in check_source(stringized, rel, rules)] == ["the # operator"]
+    from rtlab.course.deps import runtime_only_macros
+    assert "LLVM_15_0" in runtime_only_macros() or not runtime_only_macros()     # PoCL's own (_kernel.h)
     for name in ("__CLANG_ATOMIC_LLONG_LOCK_FREE", "cl_khr_fp16", "HALF_MAX", "M_PI_H", "CLK_AVC_ME_INITIALIZE_INTEL",
-                 "__builtin_constant_p"):
+                 "__builtin_constant_p", *(("LLVM_15_0", "CLANG_MAJOR") if runtime_only_macros() else ())):
         probe = text.replace("/* BEGIN SOLUTION */", f"/* BEGIN SOLUTION */\n    int k = {name}; (void)k;\n", 1)
         assert any(f"{name} is a name the compiler" in p.reason for p in check_source(probe, rel, rules)), name
     fine = text.replace("/* BEGIN SOLUTION */", "/* BEGIN SOLUTION */\n#define MY_DEPTH 3\n#if MY_DEPTH > 2 && "

@@ -99,6 +99,43 @@ def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
                        "-fno-discard-value-names", "-w"])
 
 
+# Where PoCL keeps the headers it puts in front of every kernel it compiles (Debian's pocl-opencl-icd, a
+# local build); a pip PoCL's are found under the Python installation
+POCL_INCLUDE_DIRS = ("/usr/share/pocl/include", "/usr/local/share/pocl/include")
+# PoCL's renames of OpenCL's built-in functions (sin -> _cl_sin): the same functions in both compilers
+POCL_RENAMES_HEADER = "_builtin_renames.h"
+
+
+@functools.lru_cache(maxsize=None)
+def runtime_only_macros() -> frozenset:
+    """Macros PoCL's kernel headers define that the rules' clang (opencl_ir's) does not: a name such as
+    ``LLVM_15_0`` or ``CLANG_MAJOR`` means one thing in the compile that runs a kernel and nothing in the
+    one the grader's rules read (rtlab.course.submission refuses them in submitted files). Empty when
+    neither PoCL's headers nor clang is found."""
+    import sys
+    dirs = [Path(d) for d in POCL_INCLUDE_DIRS] + sorted(Path(sys.prefix).glob("lib/python3*/site-packages/pocl*/**/include"))
+    pocl: set[str] = set()
+    for d in dirs:
+        for h in (sorted(d.glob("*.h")) if d.is_dir() else []):
+            if h.name == POCL_RENAMES_HEADER:
+                continue
+            try:
+                text = h.read_text(errors="replace")
+            except OSError:
+                continue
+            pocl.update(re.findall(r"^[ \t]*#[ \t]*define[ \t]+([A-Za-z_]\w*)", text, re.M))
+    clang = find_clang()
+    if not pocl or clang is None:
+        return frozenset(pocl)
+    try:
+        out = subprocess.run([clang, "-x", "cl", "-cl-std=CL1.2", "-march=native", "-Xclang", "-finclude-default-header",
+                              "-dM", "-E", "-"], input="", capture_output=True, text=True, timeout=TIMEOUT_S).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return frozenset(pocl)
+    ours = set(re.findall(r"^#define ([A-Za-z_]\w*)", out, re.M))
+    return frozenset(pocl - ours)
+
+
 class PreprocessorError(RuntimeError):
     """The preprocessor stopped on the source (its diagnostics: a #error, a bad #if...)."""
 

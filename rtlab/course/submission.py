@@ -12,8 +12,10 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
   the rest of the kernel sources use (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
 * no name a compiler or the OpenCL runtime provides that the lab's kernel sources do not use: reserved
-  names (``__AVX__``, ``__CLANG_ATOMIC_LLONG_LOCK_FREE``) and the runtime's (``POCL_...``, extension and
-  ``CLK_`` enumeration macros, ``HALF_...``). Their values differ between the clang that the rules
+  names (``__AVX__``, ``__CLANG_ATOMIC_LLONG_LOCK_FREE``), the runtime's (``POCL_...``, extension and
+  ``CLK_`` enumeration macros, ``HALF_...``, and every macro PoCL's kernel headers define that the
+  rules' clang does not: ``LLVM_15_0``, ``CLANG_MAJOR``), and no ``#`` operator (stringizing) in a
+  ``#define``. Their values differ between the clang that the rules
   below read the code with and PoCL's compile, and ``if (sizeof(STR(POCL_DEVICE_ADDRESS_BITS)) < 8)``
   is a constant clang folds away, with the call behind it, where PoCL runs it;
 * conditionals (``#if``, ``#ifdef``...) that test only the lab's own macros (those the kernel sources
@@ -103,6 +105,7 @@ class SourceRules:
     names_used: dict                 # identifier -> a file (relpath) of the tree that uses it
     defined_by_file: dict            # relpath -> frozenset of macro names the reference file defines
     tested_by_file: dict = None      # relpath -> frozenset of macro names the reference file's conditionals test
+    runtime_macros: frozenset = frozenset()  # macros only the runtime's compiler defines (deps.runtime_only_macros)
 
     def testable(self, relpath: str) -> frozenset:
         """Macros a conditional of the submitted file ``relpath`` may test (besides the file's own)."""
@@ -133,7 +136,8 @@ def tree_rules(root: Path, extra_files=()) -> SourceRules:
         for t in toks:
             if t.kind == "ident":
                 names.setdefault(t.text, {})[rel] = None
-    return SourceRules(headers, {k: tuple(v) for k, v in names.items()}, defined, tested)
+    from .deps import runtime_only_macros
+    return SourceRules(headers, {k: tuple(v) for k, v in names.items()}, defined, tested, runtime_only_macros())
 
 
 CONDITIONALS = {"if", "ifdef", "ifndef", "elif", "elifdef", "elifndef"}
@@ -211,6 +215,10 @@ def _directive_problems(directives, relpath: str, rules: SourceRules) -> list[Re
                 refuse(d.line, f"#{d.name} tests {unknown[0]}, not one of the lab's macros (RT_... and those this "
                                f"file's template tests): the grader reads your code as the compiler does under the "
                                f"lab's own macros, and code behind the runtime's (PoCL's) would escape it")
+        elif d.name == "define" and any(t.kind == "punct" and t.value == "#" for t in d.args[1:]):
+            refuse(d.line, "the # operator (a macro argument made a string) is not allowed in submitted kernels: "
+                           "a name spelled out as text can mean one thing to the compiler that reads your code for "
+                           "the grader and another to the one that runs it")
         elif d.name in ("define", "undef") and d.args and d.args[0].kind == "ident":
             name = d.args[0].text
             users = [f for f in rules.names_used.get(name, ()) if f != relpath]
@@ -241,7 +249,8 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
                            "without a byte-order mark, with non-ASCII text only in comments")
         elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
             refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
-        elif t.kind == "ident" and _provided_name(t.text) and t.text not in rules.names_used:
+        elif t.kind == "ident" and (_provided_name(t.text) or t.text in rules.runtime_macros) \
+                and t.text not in rules.names_used:
             refuse(t.line, f"{t.text} is a name the compiler or the OpenCL runtime provides, which the lab's kernels "
                            f"do not use: its value differs between the compiler that reads your code for the grader "
                            f"and the one that runs it, so submitted kernels may not depend on it")
