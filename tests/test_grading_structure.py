@@ -576,3 +576,18 @@ def test_code_behind_a_value_the_two_compilers_disagree_on_is_seen(guard, tmp_pa
         assert "__CLANG_ATOMIC_LLONG_LOCK_FREE is a name the compiler or the OpenCL runtime provides" in t.output
     else:
         assert "traverse_kd_restart keeps a per-ray private array stack" in t.output, t.output
+
+
+def test_a_call_behind_pocls_empty_inline_is_seen(tmp_path):
+    """The sixth audit: PoCL compiles every kernel with -Dinline=, and a macro that tests for an empty
+    argument (no # operator, no reserved name) folded lab 00's walk away in the rules' clang, where
+    `inline` was still a keyword (5 / 5 on trace_restart). The rules' clang now gets PoCL's -Dinline=."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    probe = ("#define RESTART_PROBE() ~, 1\n#define RESTART_SECOND(a, b, rest...) b\n"
+             "#define RESTART_CHECK(args...) RESTART_SECOND(args, 0, 0)\n"
+             "#define RESTART_EMPTY(x) RESTART_CHECK(RESTART_PROBE x ())\n")
+    replace_body(sub / SHARED / FILES["traverse_kd_restart"], "traverse_kd_restart",
+                 "    if (RESTART_EMPTY(inline))\n        traverse_kd_stack(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, "
+                 "any_hit);\n    return;", probe)
+    t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
+    assert t.score == 0 and "traverse_kd_restart calls traverse_kd_stack" in t.output, t.output

@@ -92,12 +92,18 @@ def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
     numbers (clang's fake map on the host target: 1 global, 2 constant, 3 local; the target, and so
     every macro the kernels test, stays the host's, for the host's own CPU as PoCL compiles for it:
     ``-march=native``, so that a CPU macro the kernels use, ``__AVX__``, has PoCL's value here too and no
-    branch on it is dead here and live there)."""
+    branch on it is dead here and live there; and with PoCL's own language defines, POCL_LANGUAGE_DEFINES)."""
     return _run_clang(source, include_dirs, defines, "opencl",
-                      ["-march=native", "-emit-llvm", "-S", "-o", "-", "-Xclang", "-disable-llvm-passes",
-                       "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
+                      [*POCL_LANGUAGE_DEFINES, "-march=native", "-emit-llvm", "-S", "-o", "-",
+                       "-Xclang", "-disable-llvm-passes", "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
                        "-fno-discard-value-names", "-w"])
 
+
+# What PoCL's own compile command defines that changes the language, given to the rules' clang too: PoCL
+# builds every kernel with -Dinline= (its other -D options name reserved, CL_, cl_ and POCL_ macros,
+# which submitted files may not use). Without it, `inline` was a keyword here and nothing there, and a
+# macro that tests for an empty argument folded a call away here that ran there.
+POCL_LANGUAGE_DEFINES = ("-Dinline=",)
 
 # Where PoCL keeps the headers it puts in front of every kernel it compiles (Debian's pocl-opencl-icd, a
 # local build); a pip PoCL's are found under the Python installation
@@ -128,7 +134,8 @@ def runtime_only_macros() -> frozenset:
     if not pocl or clang is None:
         return frozenset(pocl)
     try:
-        out = subprocess.run([clang, "-x", "cl", "-cl-std=CL1.2", "-march=native", "-Xclang", "-finclude-default-header",
+        out = subprocess.run([clang, "-x", "cl", "-cl-std=CL1.2", *POCL_LANGUAGE_DEFINES, "-march=native",
+                              "-Xclang", "-finclude-default-header",
                               "-dM", "-E", "-"], input="", capture_output=True, text=True, timeout=TIMEOUT_S).stdout
     except (OSError, subprocess.TimeoutExpired):
         return frozenset(pocl)

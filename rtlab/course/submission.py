@@ -78,7 +78,7 @@ WORK_INSTRUMENTS = frozenset({"rt_work", "rt_counted", "RtNodeList", "RtFloat4Li
                               "load_hit_vertex"})
 # Names a compiler or the OpenCL runtime provides (besides reserved ones): the runtime's own, extension
 # macros and the enumerations and constants that depend on them
-RUNTIME_NAME_RE = re.compile(r"(?:POCL_|CLK_|cl_|cles_|HALF_)\w*|M_\w+_H\Z")
+RUNTIME_NAME_RE = re.compile(r"(?:POCL_|CLK_|CL_|cl_|cles_|HALF_)\w*|M_\w+_H\Z")
 MAX_REFUSALS = 40       # refusals listed for one file (a file of 10^5 trigraphs is refused in one message)
 
 
