@@ -111,6 +111,13 @@ def materialize(name: str, out: Path, step: str = STEP) -> Path:
     return out
 
 
+def assert_refused(report, why: dict) -> None:
+    """Each test named in ``why`` scored 0, refused (its kernels never ran), with the message given."""
+    for name, message in why.items():
+        t = report.test(name)
+        assert t.score == 0 and t.status == "refused" and message in t.output, (name, t.status, t.output)
+
+
 def reference_files(step: str, out: Path) -> Path:
     """A submission of the reference's files of a lab, in the repository layout."""
     for lf in load_config(step).files:
@@ -480,9 +487,7 @@ def test_lab03_traversals_that_call_other_lab_functions_score_nothing(tmp_path):
            "trace_shortstack": "traverse_kd_shortstack calls traverse_kd_stack (through walk_for_me)",
            "trace_ropes": "traverse_kd_ropes calls traverse_kd_stack, the function lab 00_primary grades",
            "trace_packet": "traverse_kd_packet calls traverse_kd_restart, the function lab 03_traversal grades"}
-    for name, message in why.items():
-        t = report.test(name)
-        assert t.score == 0 and t.status == "refused" and message in t.output, (name, t.output)
+    assert_refused(report, why)
     assert report.test("trace_bvh").passed, report.test("trace_bvh").output
 
 

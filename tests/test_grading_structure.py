@@ -1,15 +1,14 @@
-"""The grader's structural checks, against the audit's routes to unearned marks:
+"""The grader's structural checks, against routes to unearned marks:
 
 * lab 03 (rtlab.course.structure): lab 00's ``traverse_kd_stack`` copied into the stackless, short-stack
-  and packet traversals got 67 / 100 (the lab-call rule reads calls, not copies). A stackless traversal
-  now keeps no more per-ray indexed private storage than its reference (none), the short stack no
+  and packet traversals (the lab-call rule reads calls, not copies). A stackless traversal keeps no more per-ray indexed private storage than its reference (none), the short stack no
   more than its RT_SHORT_STACK_SIZE entries, the packet its stack in the block's local memory: read
-  from the same LLVM IR as the lab-call rule, before each compile. The third audit's stack of 64
-  entries in structs of structs of KdStackEntry (no array type anywhere: 38 points) is counted by
+  from the same LLVM IR as the lab-call rule, before each compile. A stack of 64
+  entries in structs of structs of KdStackEntry (no array type anywhere) is counted by
   what the code does with it, a variable index through whatever pointer.
 * lab 01 (rtlab.course.regions, rtlab.course.ptx, checks.nvcc.NvccKind): the template's stub with its
-  TODO comment deleted, and texture fetches of element 0, got 30 / 30 on the nvcc tests. A stub is now
-  told by its tokens; fetch_scene's PTX is followed and compared with the reference's; the shared-memory
+  TODO comment deleted, and texture fetches of element 0, on the nvcc tests. A stub is told by its
+  tokens; fetch_scene's PTX is followed and compared with the reference's; the shared-memory
   ray must be stored from the kernel's ray.
 
 Each: the reference passes, legitimate other forms pass, each forged form fails with its message. Most
@@ -28,7 +27,7 @@ from rtlab.course import grade, load_config, write_template
 from rtlab.course.regions import find_regions, stubbed_functions, template_stubs
 from rtlab.paths import PROJECT_DIR
 
-from .test_grading import reference_files
+from .test_grading import assert_refused, reference_files
 
 STEP03, STEP01 = "03_traversal", "01_memory"
 SHARED = "kernels/shared"
@@ -54,7 +53,7 @@ def replace_body(path: Path, function: str, body: str, before: str = "") -> None
 # --------------------------------------------------------------------------------------------------
 # lab 03: no per-ray stack where the reference has none
 # --------------------------------------------------------------------------------------------------
-COPIED_STACK = region_body(f"{SHARED}/rt_kdtree.h", "traverse_kd_stack")      # the audit's copy, verbatim
+COPIED_STACK = region_body(f"{SHARED}/rt_kdtree.h", "traverse_kd_stack")      # lab 00's walk, copied verbatim
 FILES = {"traverse_kd_restart": "rt_kd_restart.h", "traverse_kd_shortstack": "rt_kd_shortstack.h",
          "traverse_kd_ropes": "rt_kd_ropes.h", "traverse_kd_packet": "rt_packet.h"}
 TRAVERSAL = {"traverse_kd_restart": "restart", "traverse_kd_shortstack": "shortstack",
@@ -83,12 +82,12 @@ def shortstack_in_parallel_arrays() -> str:
     return body
 
 
-# The third audit's stack: 64 KdStackEntry in structs of structs, indexed through a pointer (1 KiB)
-NESTED_TYPES = ("typedef struct { KdStackEntry a, b, c, d; } AuditS4;\n"
-                "typedef struct { AuditS4 a, b, c, d; } AuditS16;\n"
-                "typedef struct { AuditS16 a, b, c, d; } AuditS64;\n\n")
+# A stack of 64 KdStackEntry in structs of structs, indexed through a pointer (1 KiB)
+NESTED_TYPES = ("typedef struct { KdStackEntry a, b, c, d; } NestedS4;\n"
+                "typedef struct { NestedS4 a, b, c, d; } NestedS16;\n"
+                "typedef struct { NestedS16 a, b, c, d; } NestedS64;\n\n")
 NESTED_STACK = COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];",
-                                    "AuditS64 store;\n    KdStackEntry *stack = &store.a.a.a;   /* no array type */")
+                                    "NestedS64 store;\n    KdStackEntry *stack = &store.a.a.a;   /* no array type */")
 assert NESTED_STACK != COPIED_STACK
 RESTART = region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart")
 
@@ -129,7 +128,7 @@ def restart_reading_by_axis() -> str:
             "    float seen = ax < 3 ? o[ax] + inv[ax] + lo[ax] : 0.0f;\n    (void)seen;\n" + RESTART)
 
 
-NESTED_REFUSED = (r"^traverse_kd_{f} keeps a per-ray private array store, AuditS64 indexed by a variable = 1024 B, "
+NESTED_REFUSED = (r"^traverse_kd_{f} keeps a per-ray private array store, NestedS64 indexed by a variable = 1024 B, "
                   r"where the reference traverse_kd_{f} keeps {ref}")
 
 # (function, body, text before the function, an edit of the file) -> the refusal, or None for a pass
@@ -139,11 +138,11 @@ FORMS = {
     "short stack in two arrays": ("traverse_kd_shortstack", shortstack_in_parallel_arrays(), "", None, None),
     "restart with scalars and a helper": ("traverse_kd_restart", restart_with_a_helper(), LEAF_HELPER, None, None),
     "restart reading the ray by axis": ("traverse_kd_restart", restart_reading_by_axis(), "", None, None),
-    # the third audit's nested-struct stack, and other ways to index private memory without an array type
-    "nested-struct stack as restart (the audit's)": (
+    # a nested-struct stack, and other ways to index private memory without an array type
+    "nested-struct stack as restart": (
         "traverse_kd_restart", NESTED_STACK, NESTED_TYPES, None,
         NESTED_REFUSED.format(f="restart", ref=r"none \(0 B\): kd-restart is stackless")),
-    "nested-struct stack as short stack (the audit's)": (
+    "nested-struct stack as short stack": (
         "traverse_kd_shortstack", NESTED_STACK, NESTED_TYPES, None,
         NESTED_REFUSED.format(f="shortstack", ref=r"160 B \(its stack, \[4 x KdShortStackEntry\]\): a short stack")),
     "nested-struct stack as ropes": (
@@ -166,8 +165,8 @@ FORMS = {
         NESTED_TYPES, None, NESTED_REFUSED.format(f="restart", ref="none")),
     "a union indexed through a pointer": (
         "traverse_kd_ropes",
-        NESTED_STACK.replace("AuditS64 store;\n    KdStackEntry *stack = &store.a.a.a;",
-                             "union { AuditS64 s; int first; } u;\n    KdStackEntry *stack = &u.s.a.a.a;"),
+        NESTED_STACK.replace("NestedS64 store;\n    KdStackEntry *stack = &store.a.a.a;",
+                             "union { NestedS64 s; int first; } u;\n    KdStackEntry *stack = &u.s.a.a.a;"),
         NESTED_TYPES, None,
         r"^traverse_kd_ropes keeps a per-ray private array u, a union indexed by a variable = 1024 B"),
     "recursive walk": (
@@ -350,8 +349,8 @@ def test_indexed_storage_is_read_from_what_the_code_does():
 
 
 def test_lab03_nested_struct_stack_scores_nothing(tmp_path):
-    """The third audit's submission (lab 00's walk in kd-restart and the short stack, its stack 64
-    KdStackEntry in structs of structs: 38 / 38 on its tests): both traversals are refused, saying so."""
+    """Lab 00's walk in kd-restart and the short stack, its stack 64 KdStackEntry in structs of
+    structs: both traversals are refused, saying so."""
     sub = reference_files(STEP03, tmp_path / "sub")
     for f in ("traverse_kd_restart", "traverse_kd_shortstack"):         # rt_kd_shortstack.h includes
         replace_body(sub / SHARED / FILES[f], f, NESTED_STACK,             # rt_kd_restart.h: its types
@@ -360,14 +359,14 @@ def test_lab03_nested_struct_stack_scores_nothing(tmp_path):
     for name, f in (("trace_restart", "restart"), ("trace_shortstack", "shortstack")):
         t = report.test(name)
         assert t.score == 0 and t.status == "refused", (name, t.status, t.output)
-        assert f"traverse_kd_{f} keeps a per-ray private array store, AuditS64 indexed by a variable = 1024 B" \
+        assert f"traverse_kd_{f} keeps a per-ray private array store, NestedS64 indexed by a variable = 1024 B" \
             in t.output, t.output
     assert report.score == 0
 
 
 def test_lab03_copied_stack_scores_nothing_and_a_restart_of_its_own_passes(tmp_path):
-    """The audit's route, graded: lab 00's stack walk copied into the short stack, ropes and packet
-    traversals (with the audit's copy into kd-restart they had 67 / 100): each of their tests is refused
+    """Lab 00's stack walk copied into the short stack, ropes and packet
+    traversals: each of their tests is refused
     with the structure rule's message; a kd-restart written with scalar locals of its own passes."""
     sub = reference_files(STEP03, tmp_path / "sub")
     replace_body(sub / SHARED / "rt_kd_restart.h", "traverse_kd_restart", restart_with_scalars())
@@ -381,9 +380,7 @@ def test_lab03_copied_stack_scores_nothing_and_a_restart_of_its_own_passes(tmp_p
            "trace_ropes": "traverse_kd_ropes keeps a per-ray private array stack",
            "trace_packet": "traverse_kd_packet keeps a per-ray private array stack",
            "render_packet": "traverse_kd_packet keeps a per-ray private array stack"}
-    for name, message in why.items():
-        t = report.test(name)
-        assert t.score == 0 and t.status == "refused" and message in t.output, (name, t.status, t.output)
+    assert_refused(report, why)
     assert report.score == report.test("trace_restart").max_score
 
 
@@ -440,11 +437,11 @@ PTX_FORMS = {
     "make_ray again": (SHARED_RAY, MEMORY_CU, "place_ray_shared",
                        "    slots[lane] = make_ray(ray.o, ray.d, ray.tmin, ray.tmax);\n    return &slots[lane];", None),
     # forged: fail, each with its message
-    "element 0 (the audit's)": (
+    "element 0": (
         FETCH, MEMORY_H, "fetch_int_texture", "    return tex1Dfetch<int>(tex, 0);",
         r"for objects \(fetch_int_texture\), element \d+: stores \(objects\[0\]\.x, 0, 0, 0\) where the reference "
         r"stores \(objects\[\d+\]\.x, 0, 0, 0\): fetch_int_texture must return element i"),
-    "half an int2 (the audit's)": (
+    "half an int2": (
         FETCH, MEMORY_H, "fetch_int2_texture", "    int4 v = tex1Dfetch<int4>(tex, i);\n    return make_int2(v.x, 0);",
         r"for nodes \(fetch_int2_texture\), element (\d+): stores \(nodes\[\1\]\.x, 0, 0, 0\) where the reference "
         r"stores \(nodes\[\1\]\.x, nodes\[\1\]\.y, 0, 0\)"),
@@ -513,10 +510,9 @@ def test_nvcc_checks_read_the_ptx(form, tmp_path):
 
 
 @pytest.mark.skipif(not nvcc_available(), reason="no nvcc (the CUDA toolkit) on PATH")
-def test_lab01_nvcc_tests_fail_the_audits_submission_and_pass_the_reference(tmp_path):
-    """The audit's submission (the template; place_ray_shared's TODO and STUB lines deleted; the texture
-    fetches of element 0 and an int2 of half its texel) had 30 / 30 on the nvcc tests: now 0, saying why;
-    the reference keeps 30 / 30."""
+def test_lab01_nvcc_tests_fail_a_stub_without_its_todo_and_wrong_fetches(tmp_path):
+    """The template with place_ray_shared's TODO and STUB lines deleted, and texture fetches of element 0
+    and of half an int2: 0 on the nvcc tests, saying why; the reference keeps full marks."""
     tests = ["cuda_textures", "cuda_shared_ray"]
     sub = tmp_path / "forged"
     write_template(STEP01, sub)
@@ -558,9 +554,9 @@ def test_lab03_template_still_compiles_its_stubs_are_not_refused(tmp_path):
     "sizeof(MY_XSTR(LLVM_15_0)) == 1",                       # PoCL's own _kernel.h defines it empty
     "__AVX__ == 1"])                                         # a CPU macro the kernels use (rt_lanes.h)
 def test_code_behind_a_value_the_two_compilers_disagree_on_is_seen(guard, tmp_path):
-    """The fourth audit: a constant condition on a macro whose value differs between the clang that reads
+    """A constant condition on a macro whose value differs between the clang that reads
     the code for the rules and PoCL's compile is folded away, with lab 00's walk behind it, where PoCL
-    runs it (67 / 100 for lab 03 with no traversal written; the fifth audit: PoCL's own LLVM_15_0). The
+    runs it (lab 00's walk in lab 03 with no traversal written; PoCL's own LLVM_15_0 too). The
     # operator, and the runtime's and reserved names the kernels do not use, are refused as text; a CPU
     macro the kernels use has PoCL's value in the rules' clang (-march=native), so the copied walk
     behind it is seen and refused."""
@@ -579,7 +575,7 @@ def test_code_behind_a_value_the_two_compilers_disagree_on_is_seen(guard, tmp_pa
 
 
 def test_a_call_behind_pocls_empty_inline_is_seen(tmp_path):
-    """The sixth audit: PoCL compiles every kernel with -Dinline=, and a macro that tests for an empty
+    """PoCL compiles every kernel with -Dinline=, and a macro that tests for an empty
     argument (no # operator, no reserved name) folded lab 00's walk away in the rules' clang, where
     `inline` was still a keyword (5 / 5 on trace_restart). The rules' clang now gets PoCL's -Dinline=."""
     sub = reference_files(STEP03, tmp_path / "sub")

@@ -37,7 +37,7 @@ def reference_submission(out: Path) -> Path:
 
 def moller_as_watertight(text: str) -> str:
     """rt_intersect.h with the given Moller-Trumbore's body pasted into intersect_ray_tri_watertight's
-    region (what an audit handed in for 100 / 100)."""
+    region: watertight on no mesh, right nearly everywhere else."""
     moller = re.search(r"^RT_FN int intersect_ray_tri_moller\([^)]*\)\n\{\n(.*?)^\}\n", text, re.S | re.M)
     assert moller, "intersect_ray_tri_moller not found in the reference"
     region = next(r for r in find_regions(text, INTERSECT_H) if r.function == "intersect_ray_tri_watertight")

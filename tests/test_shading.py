@@ -457,26 +457,15 @@ def test_a_light_in_the_floors_plane_lights_a_sphere_as_the_reference_does(backe
     _check_against_reference(result, ref, "a light in the floor's plane")
 
 
-def _box(lo, hi):
-    """A closed box, counter-clockwise seen from outside: (vertices (8, 3), faces (12, 3))."""
-    v = np.array([[(lo, hi)[i & 1][0], (lo, hi)[i >> 1 & 1][1], (lo, hi)[i >> 2 & 1][2]] for i in range(8)], float)
-    f = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3],
-                  [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]])
-    c = v.mean(0)
-    for k in range(12):
-        a, b, d = v[f[k]]
-        if np.dot(np.cross(b - a, d - a), a - c) < 0:
-            f[k] = f[k][[0, 2, 1]]
-    return v, f
-
-
 @pytest.mark.parametrize("inside", [1e-2, 1e-4])
 def test_a_light_just_inside_a_closed_box_lights_nothing_outside(backend, inside):
     """A light 1e-2 and 1e-4 (of the box's size) inside a closed box's wall: nothing outside is lit, in
-    the kernels (tree, wavefront, the light buffer) and the float64 reference. A shadow segment that
-    stopped a fixed 1e-4 of its length short of the light let the floor see it through the wall (655 of
-    2,304 pixels at 1e-4); it now stops a few float ulps short (shadow_segment_end)."""
-    v, f = _box((-1, 0, -1), (1, 2, 1))
+    the kernels (tree, wavefront, the light buffer) and the float64 reference: a shadow segment stops a
+    few float ulps short of its light (shadow_segment_end), not a fixed share of its length, which lets
+    the floor see a light that near the wall through it."""
+    import trimesh
+    box = trimesh.creation.box(bounds=[(-1, 0, -1), (1, 2, 1)])
+    v, f = np.asarray(box.vertices, float), np.asarray(box.faces)
     floor = np.array([[-10, 0, -10], [10, 0, -10], [10, 0, 10], [-10, 0, 10]], float)
     vertices, faces = np.r_[v, floor], np.r_[f, [[8, 10, 9], [8, 11, 10]]]
     camera = Camera((0, 12, 14), (0, 0, 0), width=48, height=48)

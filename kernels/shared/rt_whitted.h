@@ -98,8 +98,8 @@ RT_FN float3 spawn_origin(const Surface *s, float3 d)
  * |component| of each). At t = 1, o + d rounds to a point up to an ulp of d past the light, and a
  * surface the light lies on is itself only within an ulp of its coordinates of the light: such a
  * surface (a lamp on the floor) would block the light it holds. A surface farther from the light
- * than the gap blocks it, however long the segment (pbrt's fixed 1e-4 of the segment let a wall
- * 1e-4 of a segment from the light, on the light's far side, pass light through). Left out: surfaces
+ * than the gap blocks it, however long the segment (a fixed share of the segment, pbrt's 1e-4, would
+ * let a wall that near the light, on its far side, pass light through). Left out: surfaces
  * the segment meets at under ~1/RT_SHADOW_GAP_ULPS rad from their plane, within the gap over that
  * angle. The host reads the constant (rtlab/reference/whitted.py, rtlab/accel/light_buffer.py). */
 #define RT_SHADOW_GAP_ULPS 32

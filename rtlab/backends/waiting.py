@@ -32,10 +32,10 @@ KERNEL_TIMEOUT_S = 120.0     # one launch of a student's kernel; the reference's
 
 @lru_cache(maxsize=None)
 def _student_tree(root: Path) -> bool:
-    from ..paths import REFERENCE_KERNEL_DIR, STUB_MARK
+    from ..paths import REFERENCE_KERNEL_DIR, tree_has_stubs
     if root.resolve() != REFERENCE_KERNEL_DIR.resolve():
         return True
-    return any(STUB_MARK in p.read_text(errors="replace") for p in sorted((root / "shared").glob("*.h")))
+    return any(tree_has_stubs(f"shared/{p.name}") for p in sorted((root / "shared").glob("*.h")))
 
 
 def student_tree() -> bool:

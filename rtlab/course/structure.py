@@ -40,7 +40,7 @@ RT_STACK_SIZE of 29 is 1,128 B (at 21: 1,000 B), only 244 to 416 B above them (1
 short stack at 21), while a helper of one's own on the leaf path adds its whole frame (intersect_leaf's
 parameters alone take 104 B) and each scalar 4 to 16 B: a restart written with its own helper and a
 few dozen more scalars moves by as much. The indexed bytes of the same programs: 0 for the
-references (160 B of short stack), 464 B for the copy at 29, 1,024 B for the audit's struct stack,
+references (160 B of short stack), 464 B for the copy at 29, 1,024 B for a 64-entry stack in structs of structs,
 0 to 40 B for the legitimate variants measured (see :data:`SLACK_BYTES`).
 
 What it cannot see (the README's "limits"): state kept in scalars (a 64-bit trail of bits is a
@@ -147,7 +147,7 @@ def read_program(ir: str) -> Program:
 
 def describe_local(loc: Local) -> str:
     """A counted local as a student reads it: its array (``[20 x KdStackEntry]``, ``a struct holding
-    [...]``, ``<16 x i32>``), or its type and how it is indexed (``AuditS64 indexed by a variable``,
+    [...]``, ``<16 x i32>``), or its type and how it is indexed (``Nested64 indexed by a variable``,
     ``Ray, a vector lane indexed by a variable``)."""
     if not loc.indexed or loc.bytes <= array_bytes(loc.ty):
         return describe(loc.ty)
