@@ -184,6 +184,9 @@ class OpenCLBackend(Backend):
         self._programs: dict = {}
         self.prebuilt_only = False      # a grading test process: every launch from binaries built in setup
         self.prebuilt = PoclPrebuilt()
+        # A grading test process: (path, defines) -> the program as one preprocessed text, compiled with
+        # no -I or -D (rtlab.course.run_test: the rules read the very same text)
+        self.one_text = None
 
     def is_gpu(self) -> bool:
         return bool(self.device.type & _cl().device_type.GPU)
@@ -216,14 +219,16 @@ class OpenCLBackend(Backend):
         key = (str(path), tuple(map(str, include_dirs(path))), tuple(sorted(defines.items())), tuple(options))
         if key in self._programs:
             return self._programs[key]
-        text = read_source(path)
-        # '#line' makes compiler messages name the real file instead of '<source>'
-        source = f'#line 1 "{path}"\n{text}'
-        flags = [*(f"-I{d}" for d in include_dirs(path)), f"-I{Path(path).parent}"]
-        flags += [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        if self.one_text is not None:     # its line markers name the files
+            source, flags = self.one_text(Path(path), self.program_defines(defines)), []
+        else:
+            # '#line' makes compiler messages name the real file instead of '<source>'
+            source = f'#line 1 "{path}"\n{read_source(path)}'
+            flags = [*(f"-I{d}" for d in include_dirs(path)), f"-I{Path(path).parent}"]
+            flags += [f"-D{k}={v}" for k, v in sorted(self.program_defines(defines).items())]
         flags += list(options)
-        if self.is_nvidia():     # inline PTX where rt_port.h needs it, for the GPU's generation (major x 10 + minor)
-            flags += ["-cl-nv-verbose", f"-DRT_NV_PTX={self.nv_compute_capability()}"]
+        if self.is_nvidia():
+            flags += ["-cl-nv-verbose"]
         extra = settings.get("RTLAB_CL_OPTIONS")
         if extra:
             flags += extra.split()
@@ -244,6 +249,11 @@ class OpenCLBackend(Backend):
         prog = OpenCLProgram(self, Path(path), defines, program, log)
         self._programs[key] = prog
         return prog
+
+    def program_defines(self, defines: dict) -> dict:
+        """The defines a program compiles with: ``defines``, and on an NVIDIA GPU its generation (major x
+        10 + minor) for the inline PTX where rt_port.h needs it."""
+        return {**defines, "RT_NV_PTX": self.nv_compute_capability()} if self.is_nvidia() else dict(defines)
 
     def is_pocl(self) -> bool:
         return "Portable Computing Language" in self.platform.name or "PoCL" in self.platform.version

@@ -56,18 +56,20 @@ def _make_deps(text: str) -> list[str]:
     return [p.replace("\\ ", " ").replace("$$", "$") for p in parts if p]
 
 
-def _run_clang(source: Path, include_dirs: list[Path], defines: dict, language: str, flags: list[str]) -> str:
+def _run_clang(source: Path, include_dirs: list[Path], defines: dict, language: str, flags: list[str],
+               text: str | None = None) -> str:
     """clang on ``source`` as the compile sees it (its folders and defines), with ``flags``: its output,
-    or PreprocessorError (its diagnostics), MemoryError or RuntimeError."""
+    or PreprocessorError (its diagnostics), MemoryError or RuntimeError. With ``text``, clang reads that
+    (standard input) in place of the file, ``source`` naming it in messages."""
     clang = find_clang()
     if clang is None:
         raise RuntimeError("no clang on PATH to read the kernel as the compiler does (Debian's PoCL brings clang-NN)")
     lang = ["-x", "cl", "-cl-std=CL1.2"] if language == "opencl" else \
         ["-x", "c++", "-D__CUDACC__", "-D__CUDA_ARCH__=900", "-nostdinc", "-nostdinc++"]
     cmd = [clang, *lang, *flags, *(f"-I{Path(d).resolve()}" for d in include_dirs),
-           *(f"-D{k}={v}" for k, v in sorted(defines.items())), str(Path(source).resolve())]
+           *(f"-D{k}={v}" for k, v in sorted(defines.items())), "-" if text is not None else str(Path(source).resolve())]
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT_S, errors="replace")
+        out = subprocess.run(cmd, input=text, capture_output=True, text=True, timeout=TIMEOUT_S, errors="replace")
     except subprocess.TimeoutExpired:
         raise RuntimeError(f"clang did not finish reading {source.name} in {TIMEOUT_S} s")
     except OSError as e:
@@ -85,18 +87,50 @@ def included_files(source: Path, include_dirs: list[Path], defines: dict, langua
     return [Path(p) for p in _make_deps(text)]
 
 
-def opencl_ir(source: Path, include_dirs: list[Path], defines: dict) -> str:
+def opencl_ir(source: Path, include_dirs: list[Path], defines: dict, text: str | None = None) -> str:
     """An OpenCL C program's LLVM IR before any optimisation (nothing inlined away): who calls whom,
     as the compiler reads the code (rtlab.course.lab_calls), and what each function keeps where
     (rtlab.course.structure): local variables keep their names, and OpenCL's address spaces their
     numbers (clang's fake map on the host target: 1 global, 2 constant, 3 local; the target, and so
     every macro the kernels test, stays the host's, for the host's own CPU as PoCL compiles for it:
     ``-march=native``, so that a CPU macro the kernels use, ``__AVX__``, has PoCL's value here too and no
-    branch on it is dead here and live there; and with PoCL's own language defines, POCL_LANGUAGE_DEFINES)."""
+    branch on it is dead here and live there; and with PoCL's own language defines, POCL_LANGUAGE_DEFINES).
+    ``text``: the program as :func:`preprocessed_opencl` gave it, read in place of ``source``."""
     return _run_clang(source, include_dirs, defines, "opencl",
                       [*POCL_LANGUAGE_DEFINES, "-march=native", "-emit-llvm", "-S", "-o", "-",
                        "-Xclang", "-disable-llvm-passes", "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
-                       "-fno-discard-value-names", "-w"])
+                       "-fno-discard-value-names", "-w"], text)
+
+
+def preprocessed_opencl(source: Path, include_dirs: list[Path], defines: dict, runtime: dict | None = None) -> str:
+    """The program as one text, every directive but ``#pragma`` resolved by the rules' clang (as
+    :func:`opencl_ir` preprocesses it): given to the runtime's compiler and to the rules alike, so that
+    no conditional, stringized name or macro value can read one way here and another there. ``runtime``:
+    the values the runtime's compiler gives the macros the kernels test (``None``: it leaves one
+    undefined), so that the kernels take the runtime's branches. Line markers name the files the text
+    came from (compiler messages point there); clang's own headers are left out (the runtime brings its
+    own), their macros expanded where the program uses them."""
+    predefined = [f"-D{k}={v}" if v is not None else f"-U{k}" for k, v in sorted((runtime or {}).items())]
+    out = _run_clang(source, include_dirs, defines, "opencl",
+                     [*POCL_LANGUAGE_DEFINES, "-march=native", *predefined, "-E",
+                      "-Xclang", "-finclude-default-header", "-w"])
+    clang = find_clang()
+    resource = _resource_dir(clang) if clang else None
+    kept, keep = [], True
+    for line in out.splitlines():
+        m = LINE_MARKER.match(line)
+        if m is None:
+            if keep:
+                kept.append(line)
+            continue
+        name = m.group(2)
+        keep = not (name.startswith("<") or (resource is not None and Path(name).resolve().is_relative_to(resource)))
+        if keep:        # without flags: the runtime's compiler keeps no include stack for this text
+            kept.append(f"# {m.group(1)} \"{name}\"")
+    return "\n".join(kept) + "\n"
+
+
+LINE_MARKER = re.compile(r'^# (\d+) "((?:[^"\\]|\\.)*)"(?: \d)*$')
 
 
 # What PoCL's own compile command defines that changes the language, given to the rules' clang too: PoCL

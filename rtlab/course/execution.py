@@ -36,13 +36,16 @@ class TestExecution:
 
     def job(self, spec: TestSpec, mode: str = "once", count_work: bool = False) -> dict:
         from .checks import HARNESS_DIR
+        from .kernel_sources import reference_kernels
         from .lab_calls import lab_call_rules
+        from .one_text import runtime_tested_macros
         run_spec = spec.as_dict()
         run_spec["params"] = {k: v for k, v in run_spec["params"].items() if k != "seed"}   # rays come made
         return {"spec": run_spec, "step": self.config.step, "backend": self.backend, "device": self.device,
                 "mode": mode, "count_work": count_work, "memory_limit_mb": self.config.memory_limit_mb,
                 "sandbox": self.sandboxed, "read": [str(self.tree.root), str(HARNESS_DIR)],
-                "lab_calls": lab_call_rules(self.config.step), "structure": self.structure_rules()}
+                "lab_calls": lab_call_rules(self.config.step), "structure": self.structure_rules(),
+                "runtime_macros": runtime_tested_macros(reference_kernels())}
 
     def structure_rules(self) -> dict:
         """rtlab.course.structure's allowances for this step, less the functions this submission left as

@@ -49,10 +49,12 @@ class Recorder:
     and the list of programs (for the grader's note on unfinished functions)."""
 
     def __init__(self, allowed_roots: list[Path] | None, lab_calls: dict | None = None,
-                 structure: dict | None = None):
+                 structure: dict | None = None, runtime_macros=()):
         self.allowed = allowed_roots
         self.lab_calls = lab_calls          # rtlab.course.lab_calls' rules for this step (None: no rule)
         self.structure = structure          # rtlab.course.structure's allowances for this step (None: no rule)
+        self.runtime_macros = tuple(runtime_macros)   # rtlab.course.one_text: what to ask the runtime
+        self.one_text = None
         self.programs: list[dict] = []
         self.closed = False
 
@@ -61,6 +63,10 @@ class Recorder:
 
     def wrap(self, backend) -> None:
         compile_ = backend.compile
+        if self.allowed is not None and backend.language == "opencl":
+            # the rules and the runtime read one preprocessed text (rtlab.course.one_text)
+            from rtlab.course.one_text import OneText
+            self.one_text = backend.one_text = OneText(backend, self.runtime_macros)
 
         def compile(path, defines, options=()):
             from rtlab.errors import KernelBuildError
@@ -76,7 +82,8 @@ class Recorder:
                 self.programs.append(entry)
                 _send({"event": "programs", "programs": self.programs})
                 self.check_includes(backend, Path(path), defines)
-                unread = self.check_lab_calls(Path(path), defines)
+                text = self.program_text(backend, Path(path), defines)
+                unread = self.check_lab_calls(Path(path), defines, text)
             else:
                 unread = None
             program = compile_(path, defines, options)
@@ -116,13 +123,29 @@ class Recorder:
                                    f"tree (the preprocessor's own list of what it includes)"
                                    + (f"; also {', '.join(outside[1:4])}" if len(outside) > 1 else ""))
 
-    def check_lab_calls(self, path: Path, defines) -> str | None:
+    def program_text(self, backend, path: Path, defines) -> str | None:
+        """The program as one text (rtlab.course.one_text), made before the compile asks for it so that
+        its errors read as a build's; None where the programs compile from their files."""
+        if self.one_text is None:
+            return None
+        from rtlab.backends.base import format_build_error
+        from rtlab.errors import KernelBuildError
+        from rtlab.course.deps import PreprocessorError
+        from rtlab.course.submission import REFUSED_MARK
+        try:
+            return self.one_text(path, backend.program_defines(defines))
+        except PreprocessorError as e:
+            raise KernelBuildError(format_build_error(path, dict(defines), str(e))) from None
+        except (RuntimeError, MemoryError) as e:
+            raise KernelBuildError(f"{REFUSED_MARK}{path.name}: {e}") from None
+
+    def check_lab_calls(self, path: Path, defines, text: str | None = None) -> str | None:
         """The lab-call rule (rtlab.course.lab_calls) and the structure rule (rtlab.course.structure)
         on the program about to compile, both read from one LLVM IR: KernelBuildError when a graded
         function calls a lab function its reference does not, or keeps its state where its reference
         does not (more private arrays; for a packet, no or far more local memory); the refusal to raise
         after the compile when clang cannot build the IR (if the compiler fails too, its own error is
-        the clearer one)."""
+        the clearer one). ``text``: the program as the runtime compiles it (rtlab.course.one_text)."""
         calls = bool(self.lab_calls and self.lab_calls.get("allowed"))
         shape = bool(self.structure and self.structure.get("functions"))
         if not calls and not shape:
@@ -137,7 +160,8 @@ class Recorder:
         if not source.is_file():
             return None                 # a CUDA-only program: no OpenCL twin to read (see lab_calls)
         try:
-            ir = opencl_ir(source, [*include_dirs(source), source.parent], dict(defines))
+            ir = opencl_ir(source, [], {}, text) if text is not None else \
+                opencl_ir(source, [*include_dirs(source), source.parent], dict(defines))
         except (PreprocessorError, RuntimeError, MemoryError) as e:
             first = str(e).strip().splitlines()[:3]
             return f"{REFUSED_MARK}{path.name}: its calls could not be read for the lab-call rule: {' '.join(first)}"
@@ -210,7 +234,8 @@ def test_main(test_dir: Path) -> int:
     backend = get_backend(job["backend"], job.get("device"))
     recorder = Recorder([kernel_dir(), checks.HARNESS_DIR] if job.get("check_includes", True) else None,
                         job.get("lab_calls") if job.get("check_includes", True) else None,
-                        job.get("structure") if job.get("check_includes", True) else None)
+                        job.get("structure") if job.get("check_includes", True) else None,
+                        job.get("runtime_macros") or ())
     recorder.wrap(backend)
     checks.on_setup_compile(recorder.tick)
     try:
