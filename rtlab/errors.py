@@ -17,6 +17,11 @@ class KernelBuildError(RtlabError):
     """A kernel failed to compile. The message carries the file, the defines and the compiler log."""
 
 
+class KernelRunError(RtlabError):
+    """A launched kernel failed on the device (a GPU's illegal memory access...). The message names
+    the kernel and the device's own error."""
+
+
 class VariantError(RtlabError):
     """An unknown variant name (traversal, intersection test, memory placement...)."""
 

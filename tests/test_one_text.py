@@ -36,7 +36,7 @@ kernel void facts(global long *out) {
 
 
 @pytest.fixture(scope="module")
-def backend():
+def pocl():
     from rtlab.backends import get_backend
     return get_backend("opencl", "cpu")
 
@@ -49,13 +49,13 @@ def _tree(tmp_path, text: str, name: str = "probe.cl"):
     return path
 
 
-def _run_facts(backend, path) -> list[int]:
+def _run_facts(pocl, path) -> list[int]:
     import pyopencl as cl
-    program = backend.compile(path, {})
+    program = pocl.compile(path, {})
     out = np.zeros(3, np.int64)
-    buf = cl.Buffer(backend.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=out)
-    program.kernel("facts")(backend.queue, (1,), None, buf)
-    cl.enqueue_copy(backend.queue, out, buf).wait()
+    buf = cl.Buffer(pocl.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=out)
+    program.kernel("facts")(pocl.queue, (1,), None, buf)
+    cl.enqueue_copy(pocl.queue, out, buf).wait()
     return out.tolist()
 
 
@@ -64,38 +64,38 @@ def _stores_in_ir(ir: str) -> list[int]:
     return [int(v) for v in re.findall(r"store i64 (-?\d+), ", ir)]
 
 
-def test_the_runtime_runs_the_text_the_rules_read(tmp_path, backend):
+def test_the_runtime_runs_the_text_the_rules_read(tmp_path, pocl):
     path = _tree(tmp_path, DIFFERING)
-    plain = _run_facts(backend, path)
+    plain = _run_facts(pocl, path)
     ir = opencl_ir(path, [], {})
     read = _stores_in_ir(ir)
     # the two compilers differ here: the same file reads one way to the rules and runs another way
     assert plain != read, (plain, read)
-    backend.one_text = OneText(backend, runtime_tested_macros(reference_kernels()))
+    pocl.one_text = OneText(pocl, runtime_tested_macros(reference_kernels()))
     try:
-        text = backend.one_text(path, {})
+        text = pocl.one_text(path, {})
         path_one = path.with_name("probe_one.cl")      # a new program key: the backend caches by path
         path_one.write_text(DIFFERING)
-        ran = _run_facts(backend, path_one)
+        ran = _run_facts(pocl, path_one)
     finally:
-        backend.one_text = None
+        pocl.one_text = None
     assert not re.search(r"^\s*#\s*(if|ifdef|define|include)", text, re.M)
     assert ran == _stores_in_ir(opencl_ir(path, [], {}, text)) == read
 
 
-def test_the_runtime_answers_for_its_own_macros(backend):
+def test_the_runtime_answers_for_its_own_macros(pocl):
     names = ["cl_khr_fp64", "cl_khr_int64_base_atomics", "POCL_DEVICE_ADDRESS_BITS", "__CUDACC__",
              "__ENDIAN_LITTLE__", "RTLAB_NEVER_DEFINED"]
-    got = runtime_macro_values(backend, names)
-    extensions = backend.device.extensions.split()
+    got = runtime_macro_values(pocl, names)
+    extensions = pocl.device.extensions.split()
     assert got["cl_khr_fp64"] == ("1" if "cl_khr_fp64" in extensions else None)
     assert got["cl_khr_int64_base_atomics"] == ("1" if "cl_khr_int64_base_atomics" in extensions else None)
-    assert got["POCL_DEVICE_ADDRESS_BITS"] == str(backend.device.address_bits)
-    assert got["__ENDIAN_LITTLE__"] == ("1" if backend.device.endian_little else None)
+    assert got["POCL_DEVICE_ADDRESS_BITS"] == str(pocl.device.address_bits)
+    assert got["__ENDIAN_LITTLE__"] == ("1" if pocl.device.endian_little else None)
     assert got["__CUDACC__"] is None and got["RTLAB_NEVER_DEFINED"] is None
 
 
-def test_the_kernels_take_the_runtimes_branches(tmp_path, backend):
+def test_the_kernels_take_the_runtimes_branches(tmp_path, pocl):
     """The names the kernels test are asked of the runtime, and the text follows its answers."""
     names = runtime_tested_macros(reference_kernels())
     assert {"cl_khr_fp64", "__AVX__", "__CUDACC__"} <= set(names)
@@ -110,15 +110,15 @@ def test_the_kernels_take_the_runtimes_branches(tmp_path, backend):
     assert '# 1 "' + str((tmp_path / "kernels" / "shared" / "rt_port.h").resolve()) + '"' in with_fp64
 
 
-def test_a_build_error_in_the_one_text_names_the_file_and_line(tmp_path, backend):
+def test_a_build_error_in_the_one_text_names_the_file_and_line(tmp_path, pocl):
     path = _tree(tmp_path, "kernel void k(global float *o) {\n    o[0] = 1.0f;\n    o[1] = undeclared_name;\n}\n",
                  "broken.cl")
-    backend.one_text = OneText(backend, ())
+    pocl.one_text = OneText(pocl, ())
     try:
         with pytest.raises(KernelBuildError) as e:
-            backend.compile(path, {})
+            pocl.compile(path, {})
     finally:
-        backend.one_text = None
+        pocl.one_text = None
     assert re.search(r"broken\.cl:3:\d+\b", str(e.value)), str(e.value)
 
 

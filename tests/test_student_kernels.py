@@ -13,8 +13,10 @@ import pytest
 
 from rtlab.paths import REFERENCE_KERNEL_DIR
 
-HANG = "{ volatile int spin = 0; while (spin == 0) { } }"
-CRASH = "{ long idx = 400000000L * (long)(get_global_id(0) + 1); ((RT_GLOBAL int *)nodes)[idx] = 7; }"
+# a loop on a volatile read of global memory, which no compiler may drop (NVIDIA's OpenCL compiler
+# drops a loop on a volatile local), and a write far past the node array
+HANG = "{ volatile RT_GLOBAL int *w = (volatile RT_GLOBAL int *)nodes; int first = w[0]; while (w[0] == first) { } }"
+CRASH = "{ long idx = 400000000L * (long)(rt_global_id(0) + 1); ((RT_GLOBAL int *)nodes)[idx] = 7; }"
 
 
 def _student_tree(tmp_path: Path, code: str) -> Path:
@@ -72,3 +74,51 @@ def test_only_a_students_kernels_get_a_time_limit(tmp_path, monkeypatch):
     monkeypatch.setenv("RTLAB_KERNEL_TIMEOUT", "9")
     monkeypatch.setenv("RTLAB_RESULT_FD", "5")                   # a grading test process: the grader's limits
     assert waiting.kernel_time_limit() is None
+
+
+# On a GPU: students run their kernels there. The process must end with its line, and the device must
+# serve the next process (the driver tears the kernel down with the process's context).
+GPU_BACKENDS = {"cuda": ["--backend", "cuda"], "opencl-nvidia": ["--backend", "opencl", "--device", "NVIDIA"]}
+
+
+def _gpu_render(backend: str) -> list[str]:
+    return [*RENDER[:RENDER.index("--backend")], *GPU_BACKENDS[backend]]
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("gpu_backend", sorted(GPU_BACKENDS))
+def test_an_endless_loop_on_a_gpu_ends_with_a_message_and_frees_the_device(tmp_path, gpu_backend):
+    r = _run(_gpu_render(gpu_backend), _student_tree(tmp_path, HANG))
+    assert r.returncode == 3, r.stderr
+    assert "kernel render_primary still ran after 4 s" in r.stderr and "Traceback" not in r.stderr
+    after = subprocess.run([sys.executable, *_gpu_render(gpu_backend)], capture_output=True, text=True, timeout=240,
+                           env={k: v for k, v in os.environ.items() if k != "RTLAB_KERNEL_DIR"})
+    assert after.returncode == 0, after.stderr
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("gpu_backend", sorted(GPU_BACKENDS))
+def test_a_kernel_that_faults_on_a_gpu_is_named(tmp_path, gpu_backend):
+    r = _run(_gpu_render(gpu_backend), _student_tree(tmp_path, CRASH))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "this is a bug" not in r.stderr, r.stderr
+    assert "kernel render_primary failed on the device" in r.stderr and "an index past an array's end" in r.stderr
+
+
+def test_a_failure_the_device_reports_is_a_one_line_error(tmp_path, monkeypatch):
+    """CUDA's and NVIDIA OpenCL's reports of a faulting kernel, raised by a wait or a poll, with and
+    without the time limit, become a KernelRunError naming the kernel and the likely cause."""
+    from rtlab import paths
+    from rtlab.backends import waiting
+    from rtlab.errors import KernelRunError
+
+    def fails():
+        raise RuntimeError("cuEventSynchronize failed: an illegal memory access was encountered")
+
+    with pytest.raises(KernelRunError, match=r"kernel trace_rays failed on the device \(cuEventSynchronize failed: "
+                                             r"an illegal memory access was encountered\): this installation's own"):
+        waiting.wait_for_kernel("trace_rays", fails)
+    monkeypatch.setattr(paths, "_kernel_dir", _student_tree(tmp_path, ""))
+    for kwargs in ({"done": fails}, {}):
+        with pytest.raises(KernelRunError, match=r"kernel render_primary failed on the device .* an index past an "
+                                                 r"array's end in your code\?.* restart its kernel"):
+            waiting.wait_for_kernel("render_primary", fails, **kwargs)

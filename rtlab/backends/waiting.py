@@ -7,7 +7,9 @@ installation's, or one that still holds a template stub: a student release), a l
 with a time limit ($RTLAB_KERNEL_TIMEOUT seconds, default KERNEL_TIMEOUT_S; 0: none) and Ctrl-C is
 heard. Either ends the process with one line saying what ran: the device stays busy with the kernel,
 so nothing after it could run (on PoCL the process's end stops it; on a GPU the driver tears the
-kernel down with the process's context). A kernel that crashes the process (an out-of-bounds write) is named by
+kernel down with the process's context, and the next process finds the GPU free: measured on the H200,
+CUDA and NVIDIA OpenCL, experiments/gpu_student_hang.sh). A fault the device reports (CUDA's illegal
+memory access) is a KernelRunError naming the kernel, the library's own kernels' too. A kernel that crashes the process (an out-of-bounds write) is named by
 the command line's child process (rtlab.cli.supervise); in a script or notebook, faulthandler's dump
 shows the launch it died in. The library's own kernels are awaited directly (no thread, no polling:
 their launch overhead is measured), and so are the grader's test processes, which the grader times
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Callable
 
 from .. import settings
-from ..errors import RtlabError
+from ..errors import KernelRunError, RtlabError
 
 KERNEL_TIMEOUT_S = 120.0     # one launch of a student's kernel; the reference's take well under a second
 
@@ -77,13 +79,36 @@ def _give_up(message: str, status: int) -> None:
     os._exit(status)
 
 
+def run_failure(kernel: str, error: BaseException) -> KernelRunError:
+    """The error to raise when the device reports that ``kernel`` failed (CUDA's "an illegal memory
+    access was encountered", NVIDIA OpenCL's -9999 or CL_OUT_OF_RESOURCES): what failed, what the
+    device said, the likely cause, and that the device context is lost (CUDA's such errors stick to
+    it), so the process must start again."""
+    said = " ".join(str(error).split())[:300] or type(error).__name__
+    cause = ("an index past an array's end in your code? (a stack that overflows, a node or triangle index "
+             "read wrong)" if student_tree() else "this installation's own kernel: a bug, please report it")
+    return KernelRunError(f"kernel {kernel} failed on the device ({said}): {cause}. The device's context is lost: "
+                          f"start the process again (in a notebook, restart its kernel)")
+
+
+def _device_wait(kernel: str, call: Callable):
+    """``call()`` (a wait or a query on the launch), its failures as :func:`run_failure`."""
+    try:
+        return call()
+    except (RtlabError, KeyboardInterrupt):
+        raise
+    except Exception as e:         # pycuda's or pyopencl's error: the kernel failed on the device
+        raise run_failure(kernel, e) from None
+
+
 def wait_for_kernel(kernel: str, wait: Callable[[], None], done: Callable[[], bool] | None = None) -> None:
     """Wait for the launch of ``kernel`` to end: by ``wait`` (a blocking call) where no limit applies;
     where one does, by polling ``done`` when given (CUDA: its events are tied to the thread that made
-    them), else by ``wait`` in a thread of its own. Gives up as the module docstring says."""
+    them), else by ``wait`` in a thread of its own. Gives up as the module docstring says; a failure the
+    device reports is a KernelRunError (:func:`run_failure`)."""
     limit = kernel_time_limit()
     if limit is None:
-        wait()
+        _device_wait(kernel, wait)
         return
     if not faulthandler.is_enabled():     # a crash in a script or notebook then shows where it ran
         faulthandler.enable()
@@ -92,7 +117,7 @@ def wait_for_kernel(kernel: str, wait: Callable[[], None], done: Callable[[], bo
     start = time.monotonic()
     try:
         if done is not None:
-            while not done():
+            while not _device_wait(kernel, done):
                 if time.monotonic() - start > limit:
                     _give_up(f"kernel {kernel} still ran after {limit:g} s, so this process stops: {hint}", 3)
                 time.sleep(1e-4)
@@ -101,7 +126,7 @@ def wait_for_kernel(kernel: str, wait: Callable[[], None], done: Callable[[], bo
 
         def waiter():
             try:
-                wait()
+                _device_wait(kernel, wait)
             except BaseException as e:      # handed to the caller's thread below
                 failure.append(e)
             finally:
