@@ -587,3 +587,41 @@ def test_a_call_behind_pocls_empty_inline_is_seen(tmp_path):
                  "any_hit);\n    return;", probe)
     t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
     assert t.score == 0 and "traverse_kd_restart calls traverse_kd_stack" in t.output, t.output
+
+
+# --------------------------------------------------------------------------------------------------
+# what PoCL's own headers still do to the one text, overloads, and a kept TODO line
+# --------------------------------------------------------------------------------------------------
+WALK_PARAMS = "RT_SCENE_PARAMS, float4 lo, float4 hi, const Ray *ray"
+RENAMED_BUILTIN = (f"__attribute__((overloadable)) void sin({WALK_PARAMS}, const Hit *hit, int any_hit) {{ }}\n"
+                   f"__attribute__((overloadable)) void _cl_sin({WALK_PARAMS}, Hit *hit, int any_hit)\n"
+                   "{ traverse_kd_stack(RT_SCENE_ARGS, lo, hi, ray, hit, any_hit); }\n")
+TAGGED_OVERLOAD = ("typedef struct { int unused; } MyWalkTag;\n"
+                   f"__attribute__((overloadable)) void intersect_ray_tri_watertight(MyWalkTag tag, {WALK_PARAMS}, "
+                   "Hit *hit, int any_hit)\n{\n" + COPIED_STACK.replace("scene_min", "lo").replace("scene_max", "hi")
+                   + "\n}\n")
+
+
+@pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept"])
+def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
+    """Lab 00's walk in kd-restart, hidden three ways, each 67 / 100 on lab 03 before: behind an
+    overload of ``sin`` whose PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang
+    does not) the student defines too; copied into an overload of an allowed lab function (the call
+    graph reads functions by source name, so it merged with lab 02's); pasted under the template's
+    kept TODO line (which made the region count as a stub, and stubs skip the structure rule)."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    path = sub / SHARED / FILES["traverse_kd_restart"]
+    if route == "renamed_builtin":
+        replace_body(path, "traverse_kd_restart", "    sin(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit);",
+                     RENAMED_BUILTIN)
+        why = "_cl_sin is a name the compiler or the OpenCL runtime provides"
+    elif route == "overload":
+        replace_body(path, "traverse_kd_restart", "    MyWalkTag tag;\n    intersect_ray_tri_watertight(tag, "
+                     "RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit);", TAGGED_OVERLOAD)
+        why = "intersect_ray_tri_watertight is defined as an overload (__attribute__((overloadable)))"
+    else:
+        todo = "    /* TODO (lab 03_traversal): write traverse_kd_restart here; labs/03_traversal/README.md says. */\n"
+        replace_body(path, "traverse_kd_restart", todo + COPIED_STACK)
+        why = "traverse_kd_restart keeps a per-ray private array stack"
+    t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
+    assert t.score == 0 and why in t.output, t.output

@@ -64,10 +64,26 @@ RT_FN float exit_tie_bound(float t)
 #endif
 }
 
+/* Smallest entry distance that ties with the exit distance t: t exactly, or with RT_CONSERVATIVE
+ * down to the rounding bound of two plane distances (the mirror of exit_tie_bound) */
+RT_FN float entry_tie_bound(float t)
+{
+#if RT_CONSERVATIVE
+    return t - rt_abs(t) * (2.0f * RT_T_PAD);
+#else
+    return t;
+#endif
+}
+
 /* Distance at which the ray leaves the box [lo, hi], the face it leaves through as a rope slot
- * (2 axis for the lower face, 2 axis + 1 for the upper), and in *t_corner, when it leaves through
- * an edge or corner (another face's distance ties with it), the largest of the tied distances,
- * else -inf. Axes along which the ray does not move are never left (their slab distance would be
+ * (2 axis for the lower face, 2 axis + 1 for the upper), and in *t_corner, when the exit point
+ * lies on an edge or corner of the box, the largest distance of the tie, else -inf. The exit point
+ * is on an edge when another face's exit distance ties with t (the ray leaves through the edge), or
+ * when another axis's entry distance does (the ray enters that axis's slab only at t: the box is
+ * touched at the exit point alone, e.g. entered through an edge; in the padding around the scene
+ * box, where the descent's segments start before the leaf's box, an entry after t: the box is
+ * not touched at all). Either way cells the exit face's rope does not reach hold the exit point.
+ * Axes along which the ray does not move are never entered or left (their slab distance would be
  * 0 * inf = NaN on the face).
  * Hazard: tied distances need not be equal (tx one ulp before ty): the ray may cross the edge
  * anywhere in [t, *t_corner], so the cells across it touch that range, not t alone. */
@@ -82,7 +98,14 @@ RT_FN float exit_leaf_box(const Ray *ray, float4 lo, float4 hi, int *face, float
     float bound = exit_tie_bound(t);
     int tied = (tx <= bound) + (ty <= bound) + (tz <= bound);
     float t_far = rt_max(tx <= bound ? tx : t, rt_max(ty <= bound ? ty : t, tz <= bound ? tz : t));
-    *t_corner = tied > 1 ? t_far : -RT_INF;
+    /* Latest entry distance of the other axes (the exit axis's own entry ties with t only in a
+     * flat cell, left through its face like any other) */
+    float ex = ray->d.x != 0.0f && axis != 0 ? ((ray->d.x > 0.0f ? lo.x : hi.x) - ray->o.x) * ray->inv_d.x : -RT_INF;
+    float ey = ray->d.y != 0.0f && axis != 1 ? ((ray->d.y > 0.0f ? lo.y : hi.y) - ray->o.y) * ray->inv_d.y : -RT_INF;
+    float ez = ray->d.z != 0.0f && axis != 2 ? ((ray->d.z > 0.0f ? lo.z : hi.z) - ray->o.z) * ray->inv_d.z : -RT_INF;
+    float t_entry = rt_max(ex, rt_max(ey, ez));
+    int entered_at_edge = t_entry >= entry_tie_bound(t);
+    *t_corner = tied > 1 || entered_at_edge ? rt_max(t_far, t_entry) : -RT_INF;
     return t;
 }
 

@@ -87,7 +87,16 @@ def included_files(source: Path, include_dirs: list[Path], defines: dict, langua
     return [Path(p) for p in _make_deps(text)]
 
 
-def opencl_ir(source: Path, include_dirs: list[Path], defines: dict, text: str | None = None) -> str:
+def extension_flags(extensions) -> list[str]:
+    """clang's options for exactly the runtime's OpenCL extensions (``None``: clang's own set): so that
+    the rules' clang declares the built-ins, and defines the extension macros, the runtime does."""
+    if extensions is None:
+        return []
+    return ["-Xclang", "-cl-ext=" + ",".join(["-all", *(f"+{e}" for e in extensions)])]
+
+
+def opencl_ir(source: Path, include_dirs: list[Path], defines: dict, text: str | None = None,
+              extensions=None) -> str:
     """An OpenCL C program's LLVM IR before any optimisation (nothing inlined away): who calls whom,
     as the compiler reads the code (rtlab.course.lab_calls), and what each function keeps where
     (rtlab.course.structure): local variables keep their names, and OpenCL's address spaces their
@@ -95,24 +104,27 @@ def opencl_ir(source: Path, include_dirs: list[Path], defines: dict, text: str |
     every macro the kernels test, stays the host's, for the host's own CPU as PoCL compiles for it:
     ``-march=native``, so that a CPU macro the kernels use, ``__AVX__``, has PoCL's value here too and no
     branch on it is dead here and live there; and with PoCL's own language defines, POCL_LANGUAGE_DEFINES).
-    ``text``: the program as :func:`preprocessed_opencl` gave it, read in place of ``source``."""
+    ``text``: the program as :func:`preprocessed_opencl` gave it, read in place of ``source``;
+    ``extensions``: the runtime's (:func:`extension_flags`)."""
     return _run_clang(source, include_dirs, defines, "opencl",
-                      [*POCL_LANGUAGE_DEFINES, "-march=native", "-emit-llvm", "-S", "-o", "-",
+                      [*POCL_LANGUAGE_DEFINES, "-march=native", *extension_flags(extensions), "-emit-llvm", "-S", "-o", "-",
                        "-Xclang", "-disable-llvm-passes", "-Xclang", "-finclude-default-header", "-Xclang", "-ffake-address-space-map",
                        "-fno-discard-value-names", "-w"], text)
 
 
-def preprocessed_opencl(source: Path, include_dirs: list[Path], defines: dict, runtime: dict | None = None) -> str:
+def preprocessed_opencl(source: Path, include_dirs: list[Path], defines: dict, runtime: dict | None = None,
+                        extensions=None) -> str:
     """The program as one text, every directive but ``#pragma`` resolved by the rules' clang (as
     :func:`opencl_ir` preprocesses it): given to the runtime's compiler and to the rules alike, so that
     no conditional, stringized name or macro value can read one way here and another there. ``runtime``:
     the values the runtime's compiler gives the macros the kernels test (``None``: it leaves one
-    undefined), so that the kernels take the runtime's branches. Line markers name the files the text
+    undefined), so that the kernels take the runtime's branches; ``extensions``: the runtime's OpenCL
+    extensions (:func:`extension_flags`). Line markers name the files the text
     came from (compiler messages point there); clang's own headers are left out (the runtime brings its
     own), their macros expanded where the program uses them."""
     predefined = [f"-D{k}={v}" if v is not None else f"-U{k}" for k, v in sorted((runtime or {}).items())]
     out = _run_clang(source, include_dirs, defines, "opencl",
-                     [*POCL_LANGUAGE_DEFINES, "-march=native", *predefined, "-E",
+                     [*POCL_LANGUAGE_DEFINES, "-march=native", *extension_flags(extensions), *predefined, "-E",
                       "-Xclang", "-finclude-default-header", "-w"])
     clang = find_clang()
     resource = _resource_dir(clang) if clang else None

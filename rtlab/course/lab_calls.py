@@ -110,6 +110,22 @@ def _path(graph: dict[str, set[str]], start: str, goal: str) -> list[str]:
     return out[::-1]
 
 
+def overloaded_lab_function(ir: str, owners) -> str | None:
+    """Why the program breaks "a lab function is one function", or None: a lab function (one with a
+    solution region) that the IR defines under a mangled symbol, an ``overloadable`` definition beside
+    the lab's own. The call graph reads functions by source name, so such an overload would merge with
+    the lab function there, and the rules would take code of the student's own for the reference's
+    (a copied stack walk behind an overload of an allowed lab function)."""
+    for m in _DEFINE_RE.finditer(ir):
+        symbol = m.group(2)
+        if symbol.startswith("_Z") and source_name(symbol) in owners:
+            name = source_name(symbol)
+            return (f"{name} is defined as an overload (__attribute__((overloadable))): {name} is the lab's "
+                    f"function (lab {owners[name]}); a lab function is one function, so give functions of your "
+                    f"own names of their own")
+    return None
+
+
 def lab_call_problem(graph: dict[str, set[str]], rules: dict) -> str | None:
     """Why the program's graded functions break the rule (the first one found), or None."""
     owners, allowed = rules["owners"], rules["allowed"]

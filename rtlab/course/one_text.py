@@ -7,8 +7,13 @@ directive but ``#pragma`` is gone before either sees the code.
 The kernels test a few macros the runtime's compiler defines (``cl_khr_fp64``, ``__AVX__``): so that the
 kernels still take the runtime's branches, a tiny program asks the runtime for their values first
 (:func:`runtime_macro_values`: a program of empty kernels, one a fact, that it compiles but never
-runs), and the preprocessing gives them those. The names come from the
-reference's tree (:func:`runtime_tested_macros`, in the grader), not from the submission.
+runs), and the preprocessing gives them those; the rules' clang also takes the runtime's set of OpenCL
+extensions (its built-ins and extension macros). The names come from the reference's tree
+(:func:`runtime_tested_macros`, in the grader), not from the submission.
+
+What the one text leaves to the runtime is its own headers: PoCL still renames the built-ins there
+(``#define sin _cl_sin``), so the submission rule refuses names that begin with ``_``
+(rtlab.course.submission), and the rules refuse overloads of a lab function (rtlab.course.lab_calls).
 """
 from __future__ import annotations
 
@@ -77,6 +82,9 @@ class OneText:
     def __init__(self, backend, names):
         self.backend = backend
         self.names = tuple(names)
+        # the runtime's extensions: the rules' clang then declares the built-ins the runtime does
+        device = getattr(backend, "device", None)
+        self.extensions = tuple(str(device.extensions).split()) if device is not None else None
         self._runtime: dict | None = None
         self._texts: dict = {}
 
@@ -91,5 +99,5 @@ class OneText:
         key = (str(path), tuple(sorted((k, str(v)) for k, v in defines.items())))
         if key not in self._texts:
             self._texts[key] = preprocessed_opencl(Path(path), [*include_dirs(path), Path(path).parent], defines,
-                                                   self.runtime())
+                                                   self.runtime(), self.extensions)
         return self._texts[key]

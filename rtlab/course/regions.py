@@ -143,10 +143,11 @@ def template_stubs(text: str, where: str = "<source>") -> dict[str, str]:
 
 
 def stubbed_functions(text: str, stubs: dict[str, str] | None = None) -> list[str]:
-    """Functions whose region still holds the template's stub: its TODO line, or (the TODO comment
-    deleted, comments or spacing changed) the same tokens as the template's stub statement. ``stubs``:
-    the template's stubs by function (:func:`template_stubs` of the reference file, which knows a
-    stub even where the submitted region dropped its STUB line); without it, the region's own."""
+    """Functions whose region still holds the template's stub: the same code tokens as the template's
+    stub statement (comments, the TODO line among them, and spacing do not count: code written under a
+    kept TODO line is code, and the grader's rules judge it). ``stubs``: the template's stubs by function
+    (:func:`template_stubs` of the reference file, which knows a stub even where the submitted region
+    dropped its STUB line); without it, the region's own."""
     try:
         regions = find_regions(text)
     except LabError:
@@ -154,9 +155,6 @@ def stubbed_functions(text: str, stubs: dict[str, str] | None = None) -> list[st
     out = []
     for r in regions:
         body = r.body(text)
-        if TODO_MARK in body:
-            out.append(r.function)
-            continue
         stub = (stubs or {}).get(r.function)
         if stub is None:
             try:

@@ -151,7 +151,7 @@ class Recorder:
         if not calls and not shape:
             return None
         from rtlab.course.deps import PreprocessorError, opencl_ir
-        from rtlab.course.lab_calls import ir_call_graph, lab_call_problem
+        from rtlab.course.lab_calls import ir_call_graph, lab_call_problem, overloaded_lab_function
         from rtlab.course.structure import structure_problem
         from rtlab.course.submission import REFUSED_MARK
         from rtlab.errors import KernelBuildError
@@ -160,13 +160,14 @@ class Recorder:
         if not source.is_file():
             return None                 # a CUDA-only program: no OpenCL twin to read (see lab_calls)
         try:
-            ir = opencl_ir(source, [], {}, text) if text is not None else \
+            ir = opencl_ir(source, [], {}, text, self.one_text.extensions) if text is not None else \
                 opencl_ir(source, [*include_dirs(source), source.parent], dict(defines))
         except (PreprocessorError, RuntimeError, MemoryError) as e:
             first = str(e).strip().splitlines()[:3]
             return f"{REFUSED_MARK}{path.name}: its calls could not be read for the lab-call rule: {' '.join(first)}"
         graph = ir_call_graph(ir)
-        problem = (lab_call_problem(graph, self.lab_calls) if calls else None) or \
+        problem = overloaded_lab_function(ir, (self.lab_calls or {}).get("owners") or {}) or \
+            (lab_call_problem(graph, self.lab_calls) if calls else None) or \
             (structure_problem(ir, graph, self.structure, dict(defines)) if shape else None)
         if problem:
             raise KernelBuildError(f"{REFUSED_MARK}{problem}")

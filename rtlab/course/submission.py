@@ -12,7 +12,8 @@ from reaching past that tree or around the stubs. It reads the file as the C pre
   the rest of the kernel sources use (a function, a variant switch such as RT_TRAVERSAL, a type) cannot
   be redefined around a stub;
 * no name a compiler or the OpenCL runtime provides that the lab's kernel sources do not use: reserved
-  names (``__AVX__``, ``__CLANG_ATOMIC_LLONG_LOCK_FREE``), the runtime's (``POCL_...``, extension and
+  names (any that begins with ``_``: ``__AVX__``, ``__CLANG_ATOMIC_LLONG_LOCK_FREE``, PoCL's ``_cl_sin``,
+  the name its own headers give the built-in ``sin``), the runtime's (``POCL_...``, extension and
   ``CLK_`` enumeration macros, ``HALF_...``, and every macro PoCL's kernel headers define that the
   rules' clang does not: ``LLVM_15_0``, ``CLANG_MAJOR``), and no ``#`` operator (stringizing) in a
   ``#define``. Their values differ between the clang that the rules
@@ -178,11 +179,13 @@ LANGUAGE_KEYWORDS = frozenset({
 
 
 def _provided_name(name: str) -> bool:
-    """Whether a name is one a compiler or the runtime provides: reserved (``__x``, ``_X``; the languages'
-    keywords aside: LANGUAGE_KEYWORDS) or the runtime's (RUNTIME_NAME_RE)."""
+    """Whether a name is one a compiler or the runtime provides: reserved (any name that begins with
+    ``_``, as C reserves them at file scope: PoCL renames OpenCL's built-ins to ``_cl_sin`` and the like
+    in its own headers only, so a function of that name is the built-in's overload there and nothing
+    here; the languages' keywords aside: LANGUAGE_KEYWORDS) or the runtime's (RUNTIME_NAME_RE)."""
     if name in LANGUAGE_KEYWORDS:
         return False
-    return name.startswith("__") or (name[:1] == "_" and name[1:2].isupper()) or bool(RUNTIME_NAME_RE.match(name))
+    return name[:1] == "_" or bool(RUNTIME_NAME_RE.match(name))
 
 
 def _directive_problems(directives, relpath: str, rules: SourceRules) -> list[Refusal]:
