@@ -327,6 +327,29 @@ def test_directions_are_rescaled_in_their_own_dtype(backend, sphere_scene, lengt
         assert np.all(np.isfinite(got.t[hit]))
 
 
+def test_a_t_beyond_float64_and_long_doubles_beyond_float64_are_errors(backend, sphere_scene):
+    """A direction so short that a hit's t overflows even float64 (5e-324) came back as a hit at t =
+    inf (with a numpy overflow warning); a long double origin or direction beyond float64's range
+    became inf or 0 in the cast, a silent miss. Each is now a RtlabError naming the ray; a long double
+    within range traces as its float64 value."""
+    import warnings
+    for length in (5e-324, 1e-310):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")           # no numpy overflow warning either
+            with pytest.raises(rtlab.RtlabError, match=r"ray 0 hits triangle \d+ at a t beyond float64's range"):
+                trace(sphere_scene, RAYS_O[:1], RAYS_D[:1].astype(np.float64) * length, backend=backend)
+    unit = trace(sphere_scene, RAYS_O, RAYS_D, backend=backend)
+    long_o, long_d = RAYS_O.astype(np.longdouble), RAYS_D.astype(np.longdouble)
+    got = trace(sphere_scene, long_o, long_d, backend=backend)
+    assert np.array_equal(got.tri, unit.tri) and np.array_equal(got.t, unit.t)
+    for value, which in ((np.longdouble("1e4000"), "origin"), (np.longdouble("1e4000"), "direction"),
+                         (np.longdouble("1e-4000"), "direction")):
+        o, d = long_o.copy(), long_d.copy()
+        (o if which == "origin" else d)[1, 2] = value
+        with pytest.raises(rtlab.RtlabError, match=rf"{which} of ray 1 has a component beyond float64's range"):
+            trace(sphere_scene, o, d, backend=backend)
+
+
 def test_an_origin_beyond_float32_is_an_error(backend, sphere_scene):
     with pytest.raises(rtlab.RtlabError, match=r"origin of ray 1 .* beyond float32's range"):
         trace(sphere_scene, RAYS_O * np.array([[1], [1e39], [1]]), RAYS_D, backend=backend)

@@ -118,6 +118,15 @@ def _rays_real(a, name: str) -> np.ndarray:
     arr = _real_array(a, name)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise RtlabError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if arr.dtype.kind == "f" and arr.dtype.itemsize > 8:      # long double: what float64 cannot hold is lost
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            as64 = arr.astype(np.float64)
+            lost = np.isfinite(arr) & ((~np.isfinite(as64)) | ((as64 == 0) & (arr != 0)))
+        if lost.any():
+            ray = int(np.flatnonzero(lost.any(axis=1))[0])
+            raise RtlabError(f"{name[:-1]} of ray {ray} has a component beyond float64's range (a long double "
+                             f"{arr[ray][lost[ray]][0]!r}): rtlab reads rays as float64 at most")
+        return as64
     return arr if arr.dtype.kind == "f" else arr.astype(np.float64)
 
 
@@ -207,13 +216,21 @@ def _ray_bounds(tmin, tmax, n: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _t_in_caller_units(t: np.ndarray, scale: np.ndarray) -> np.ndarray:
+def _t_in_caller_units(t: np.ndarray, scale: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """Kernel t (float32, for directions divided by scale) in units of the caller's directions: float32
     where every finite t fits float32's normal range, else float64 (a direction of length 1e-40 puts
-    a hit 10 away at t = 1e41)."""
+    a hit 10 away at t = 1e41). A hit whose t is beyond even float64's range (a direction of length
+    5e-324) is an error naming the ray: no t could be returned for it."""
     if not np.any(scale != 1.0):
         return t
-    t64 = t.astype(np.float64) / scale
+    with np.errstate(over="ignore"):
+        t64 = t.astype(np.float64) / scale
+    lost = (tri >= 0) & np.isfinite(t) & ~np.isfinite(t64)
+    if lost.any():
+        ray = int(np.flatnonzero(lost)[0])
+        raise RtlabError(f"ray {ray} hits triangle {int(tri[ray])} at a t beyond float64's range in the units of "
+                         f"its direction, whose largest component is about {scale[ray]:.3g}: the direction is too "
+                         f"short for its t to be returned; scale it up, or normalise it")
     finite = np.isfinite(t64) & (t64 != 0.0)
     if np.any(finite & ((np.abs(t64) > F32_MAX) | (np.abs(t64) < F32_TINY))):
         return t64
@@ -325,7 +342,7 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
                                         constants=("frame",))
     times = [launch() for _ in range(max(0, warmup) + max(1, repeats))][max(0, warmup):]
     t, tri, u, v = unpack_hits(backend.to_host(h_buf, np.float32, 4 * n))
-    t = _t_in_caller_units(t, scale)
+    t = _t_in_caller_units(t, scale, tri)
     return TraceResult(t, tri, u, v, float(np.median(times)), backend.name, backend.device_name, tuple(times),
                        tile_order=order)
 
