@@ -387,3 +387,24 @@ def test_gpu_wide_bvhs_match_bvh_on_the_benchmark_views():
                                       defines=defines)
                         assert all(np.array_equal(getattr(got, f), getattr(other, f)) for f in ("t", "tri", "u", "v")), \
                             f"{view} {be.name} {defines}"
+
+
+@pytest.mark.parametrize("traversal", ["bvh8", "bvh4", "bvh", "stack"])
+def test_axis_aligned_rays_from_far_away_hit_small_triangles(backend, traversal):
+    """Rays along +z (two zero direction components) from up to 3e38 away, through the inside of
+    triangles of size 2^-20 in a unit grid: well-conditioned hits (barycentrics 0.4 and 0.2, exact in
+    any arithmetic), so every traversal must return the reference's ids exactly. bvh8 missed them from
+    2^43 away: its quantised slab for a zero component spanned only 2^64 x the slack in t."""
+    n, size = 8, 2.0 ** -20
+    grid = [(i / n, j / n) for i in range(n) for j in range(n)]
+    v = np.array([[x + dx * size, y + dy * size, 0.0] for x, y in grid for dx, dy in ((0, 0), (1, 0), (0, 1))])
+    f = np.arange(len(v)).reshape(-1, 3)
+    scene = _mesh_scene("tiny-grid", v, f)
+    start = np.array([1e3, 2.0 ** 30, 2.0 ** 43, 1e18, 3e38])
+    at = np.array([[x + 0.4 * size, y + 0.2 * size] for x, y in grid[::5]])
+    o = np.array([[a[0], a[1], -z] for z in start for a in at], np.float32)
+    d = np.tile(np.float32([0.0, 0.0, 1.0]), (len(o), 1))
+    got = trace(scene, o, d, backend=backend, variant=Variant(traversal, "watertight"))
+    ref = reference_trace(v, f, o, d)
+    assert np.all(ref.tri >= 0)
+    assert np.array_equal(got.tri, ref.tri), f"{np.count_nonzero(got.tri != ref.tri)} of {len(o)} rays differ"

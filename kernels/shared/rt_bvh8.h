@@ -25,10 +25,12 @@
  *     covers, as in rt_bvh.h: no box the exact test keeps is culled (Ize 2013).
  *  2. A zero direction component gets the inverse +-2^64 (rt_bvh.h's bvh_inverse, -0 as negative):
  *     a ray lying in a slab is inside the quantised slab by the slack, so its interval there spans
- *     +-2^64 x slack, at least +-2^17 scene extents in t (the builder's smallest step is 2^-40 of the
- *     scene's extent). That covers the whole segment of a ray starting within 2^16 extents of the
- *     scene whose direction's largest component is >= 1 (normalised ones are), or within one extent
- *     where it is >= 2^-16 (the least trace() passes on). Coordinates up to 2^50 keep products finite.
+ *     +-2^64 x slack, which a ray starting far enough away outruns (2^43 extents of a scene of small
+ *     triangles: missed hits). So along such an axis the near planes' distances are padded down and
+ *     the far planes' up by the ray's length in the scene box, 2 t_exit, as rt_bvh.h's bvh_origin_pad
+ *     does (Bvh8Ray.pad: 0 along every other axis): the slab then holds the whole segment. A box
+ *     outside the slab within 2 t_exit / 2^64 of it is kept too (visited, never a wrong hit).
+ *     Coordinates up to 2^50 keep products finite.
  *  3. Near and far planes by the direction's sign: the lo and hi bytes swap roles where inv < 0, so
  *     the entry and exit are a max and a min of three distances each (rt_bvh.h's int-bit span test).
  * Boxes are culled beyond t_cull of the closest hit (rt_intersect.h), the scalar BVH's pad, so ties at
@@ -53,6 +55,7 @@ typedef struct {
 
 typedef struct {
     float3 inv;              /* 1/d, or +-2^64 where |d| <= RT_BVH_MIN_DIR (bvh_inverse) */
+    float3 pad;              /* 2 t_exit where |d| <= RT_BVH_MIN_DIR, else 0 (hazard 2) */
     float tmin;              /* the ray's tmin, +0 for -0 (bvh_span_enter compares bit patterns) */
     unsigned int octinv;     /* 7 - octant, octant bits 4, 2, 1: x, y, z negative */
     unsigned int octinv4;    /* octinv in each byte */
@@ -60,10 +63,13 @@ typedef struct {
     unsigned int magic;      /* BVH8_MAGIC */
 } Bvh8Ray;
 
-RT_FN Bvh8Ray bvh8_ray(const Ray *ray)
+RT_FN Bvh8Ray bvh8_ray(const Ray *ray, float t_exit)
 {
     Bvh8Ray r;
     r.inv = f3(bvh_inverse(ray->d.x), bvh_inverse(ray->d.y), bvh_inverse(ray->d.z));
+    float t_pad = 2.0f * t_exit;
+    r.pad = f3(bvh_origin_pad(ray->d.x, 0.0f, t_pad), bvh_origin_pad(ray->d.y, 0.0f, t_pad),
+               bvh_origin_pad(ray->d.z, 0.0f, t_pad));
     r.neg_x = r.inv.x < 0.0f;
     r.neg_y = r.inv.y < 0.0f;
     r.neg_z = r.inv.z < 0.0f;
@@ -79,7 +85,8 @@ RT_FN Bvh8Ray bvh8_ray(const Ray *ray)
 /* Hits of four child slots (one word of each plane array): for each slot whose quantised box the
  * segment [tmin, t_cut] meets, its meta's bits at its meta's position: one bit at 24 + (slot ^ octinv)
  * for an inner child, the triangle bits for a leaf (Ylitie et al.'s hit mask). */
-RT_FN unsigned int bvh8_quad_hits(const Bvh8Ray *r, float3 s, float3 off, float t_cut, unsigned int meta4,
+RT_FN unsigned int bvh8_quad_hits(const Bvh8Ray *r, float3 s, float3 off_near, float3 off_far, float t_cut,
+                                  unsigned int meta4,
                                   unsigned int lox, unsigned int loy, unsigned int loz, unsigned int hix,
                                   unsigned int hiy, unsigned int hiz)
 {
@@ -93,12 +100,12 @@ RT_FN unsigned int bvh8_quad_hits(const Bvh8Ray *r, float3 s, float3 off, float 
     unsigned int hits = 0u;
 #pragma unroll
     for (int j = 0; j < 4; ++j) {
-        float tx0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nx, j, r->magic)), s.x, off.x);
-        float ty0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(ny, j, r->magic)), s.y, off.y);
-        float tz0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nz, j, r->magic)), s.z, off.z);
-        float tx1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fx, j, r->magic)), s.x, off.x);
-        float ty1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fy, j, r->magic)), s.y, off.y);
-        float tz1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fz, j, r->magic)), s.z, off.z);
+        float tx0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nx, j, r->magic)), s.x, off_near.x);
+        float ty0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(ny, j, r->magic)), s.y, off_near.y);
+        float tz0 = rt_fma(rt_as_float((int)rt_byte_at_bits8(nz, j, r->magic)), s.z, off_near.z);
+        float tx1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fx, j, r->magic)), s.x, off_far.x);
+        float ty1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fy, j, r->magic)), s.y, off_far.y);
+        float tz1 = rt_fma(rt_as_float((int)rt_byte_at_bits8(fz, j, r->magic)), s.z, off_far.z);
         float t0 = bvh_span_enter(tx0, ty0, tz0, r->tmin);
         float t1 = bvh_span_exit(tx1, ty1, tz1, t_cut);
 #if RT_CONSERVATIVE
@@ -121,11 +128,12 @@ RT_FN unsigned int bvh8_child_hits(const Ray *ray, const Bvh8Ray *r, float4 n0, 
     float3 off = f3(rt_fma(n0.x - ray->o.x, r->inv.x, -BVH8_MAGIC_VALUE * s.x),
                     rt_fma(n0.y - ray->o.y, r->inv.y, -BVH8_MAGIC_VALUE * s.y),
                     rt_fma(n0.z - ray->o.z, r->inv.z, -BVH8_MAGIC_VALUE * s.z));
-    unsigned int lo = bvh8_quad_hits(r, s, off, t_cut, (unsigned int)rt_as_int(n1.z), (unsigned int)rt_as_int(n2.x),
+    float3 off_near = sub3(off, r->pad), off_far = add3(off, r->pad);
+    unsigned int lo = bvh8_quad_hits(r, s, off_near, off_far, t_cut, (unsigned int)rt_as_int(n1.z), (unsigned int)rt_as_int(n2.x),
                                      (unsigned int)rt_as_int(n2.z), (unsigned int)rt_as_int(n3.x),
                                      (unsigned int)rt_as_int(n3.z), (unsigned int)rt_as_int(n4.x),
                                      (unsigned int)rt_as_int(n4.z));
-    unsigned int hi = bvh8_quad_hits(r, s, off, t_cut, (unsigned int)rt_as_int(n1.w), (unsigned int)rt_as_int(n2.y),
+    unsigned int hi = bvh8_quad_hits(r, s, off_near, off_far, t_cut, (unsigned int)rt_as_int(n1.w), (unsigned int)rt_as_int(n2.y),
                                      (unsigned int)rt_as_int(n2.w), (unsigned int)rt_as_int(n3.y),
                                      (unsigned int)rt_as_int(n3.w), (unsigned int)rt_as_int(n4.y),
                                      (unsigned int)rt_as_int(n4.w));
@@ -162,7 +170,7 @@ RT_FN void traverse_bvh8(RT_SCENE_PARAMS, float4 scene_min, float4 scene_max, co
     float t_enter, t_exit;
     if (!clip_ray_box(ray, scene_min, scene_max, &t_enter, &t_exit))
         return;
-    Bvh8Ray r = bvh8_ray(ray);
+    Bvh8Ray r = bvh8_ray(ray, t_exit);
     Bvh8Group stack[RT_STACK_SIZE];
     int sp = 0;
     Bvh8Group group;
