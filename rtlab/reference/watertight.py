@@ -74,11 +74,31 @@ def ray_shear_numpy(d: np.ndarray):
     return valid, kx, ky, kz, sx, sy, sz
 
 
+def _lex_less(p, q):
+    """p < q in lexicographic order of their (x, y, z), elementwise over (..., 3) arrays."""
+    return (p[..., 0] < q[..., 0]) | ((p[..., 0] == q[..., 0]) & (
+        (p[..., 1] < q[..., 1]) | ((p[..., 1] == q[..., 1]) & (p[..., 2] < q[..., 2]))))
+
+
+def canonical_corners(a, b, c):
+    """The corners in the cyclic order that starts at the lexicographically least: the plane's t is
+    then a function of the triangle's corners, not of which one the mesh lists first, so two copies of
+    a triangle (rotated or reversed) get the same t to the bit and the tie rule (the lower id at equal
+    t) decides between them. A rotation keeps the winding; a reversed copy flips n, and n.a / n.d with
+    it, exactly."""
+    b_first = _lex_less(b, a) & _lex_less(b, c)
+    c_first = _lex_less(c, a) & _lex_less(c, b)
+    pick = lambda x, y, z: np.where(b_first[..., None], y, np.where(c_first[..., None], z, x))  # noqa: E731
+    return pick(a, b, c), pick(b, c, a), pick(c, a, b)
+
+
 def plane_t_numpy(a, b, c, d):
     """Distance along d from the origin to the plane of the corner-minus-origin points a, b, c:
-    n.a / n.d with n = (b - a) x (c - a). The float32 scene's differences are exact in float64, so n
+    n.a / n.d with n = (b - a) x (c - a), from the corners in their canonical order
+    (:func:`canonical_corners`). The float32 scene's differences are exact in float64, so n
     is exact but for a rounding a component and t errs by a few float64 ulps over the cosine of the
     incidence angle, whatever the triangle's shape (the kernels' plane_t_fp64, rt_intersect.h)."""
+    a, b, c = canonical_corners(np.asarray(a), np.asarray(b), np.asarray(c))
     e1x, e1y, e1z = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1], b[..., 2] - a[..., 2]
     e2x, e2y, e2z = c[..., 0] - a[..., 0], c[..., 1] - a[..., 1], c[..., 2] - a[..., 2]
     nx = e1y * e2z - e1z * e2y
@@ -149,6 +169,12 @@ def ray_shear(dx, dy, dz):
 
 
 @njit(cache=True, inline="always")
+def _lex_less3(px, py, pz, qx, qy, qz):
+    """(px, py, pz) < (qx, qy, qz) lexicographically (_lex_less)."""
+    return px < qx or (px == qx and (py < qy or (py == qy and pz < qz)))
+
+
+@njit(cache=True, inline="always")
 def plane_t(tv, j, ox, oy, oz, dx, dy, dz):
     """plane_t_numpy on triangle row j of tv, the same operations in the same order. A ray parallel to
     the plane (that the rounded shear let through the edges) gets NaN, a miss, where plane_t_numpy
@@ -156,6 +182,11 @@ def plane_t(tv, j, ox, oy, oz, dx, dy, dz):
     ax, ay, az = tv[j, 0] - ox, tv[j, 1] - oy, tv[j, 2] - oz
     bx, by, bz = tv[j, 3] - ox, tv[j, 4] - oy, tv[j, 5] - oz
     cx, cy, cz = tv[j, 6] - ox, tv[j, 7] - oy, tv[j, 8] - oz
+    # canonical_corners: the least corner first, the cyclic order kept
+    if _lex_less3(bx, by, bz, ax, ay, az) and _lex_less3(bx, by, bz, cx, cy, cz):
+        ax, ay, az, bx, by, bz, cx, cy, cz = bx, by, bz, cx, cy, cz, ax, ay, az
+    elif _lex_less3(cx, cy, cz, ax, ay, az) and _lex_less3(cx, cy, cz, bx, by, bz):
+        ax, ay, az, bx, by, bz, cx, cy, cz = cx, cy, cz, ax, ay, az, bx, by, bz
     e1x, e1y, e1z = bx - ax, by - ay, bz - az
     e2x, e2y, e2z = cx - ax, cy - ay, cz - az
     nx = e1y * e2z - e1z * e2y
