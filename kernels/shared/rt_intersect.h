@@ -174,7 +174,9 @@ RT_FN float3 permute3(float3 a, int kx, int ky, int kz) { return f3(get3(a, kx),
  * and so are the cross product's products (24-bit by 24-bit), so n is exact but for one rounding
  * a component, and the two dot products err by a few double ulps over the cosine of the angle the
  * ray (and v0 - o) make with the plane: t lands within an ulp of float of the exact distance down
- * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. Pure and branch-free, so a lane version is
+ * to |cos| ~ 1e-7 (RT_T_ERR), on triangles of any shape. (An origin nearer the plane than ~2^-30
+ * |v0 - o|, one on the triangle above all, gets a t whose sign is rounding's: spawned rays start off
+ * the surface.) Pure and branch-free, so a lane version is
  * the same expressions on double lanes. A ray parallel to the plane gives an inf or NaN t, which
  * closer_hit() rejects. */
 RT_FN void plane_normal_fp64(float3 v0, float3 v1, float3 v2, double *nx, double *ny, double *nz)

@@ -262,7 +262,9 @@ def trace(scene: Scene, origins, directions, backend=None, variant: Variant | st
     wins, in every traversal and triangle test (as in the float64 reference): every traversal culls a
     cell or box only beyond the hit's t widened by its rounding pad (t_cull, rt_intersect.h). With the
     watertight test (the default) t is the plane distance computed in double, within 2 ulps of the
-    exact one at any angle (plane_t_fp64), so every traversal returns the very same ids, ties at
+    exact one at any angle (plane_t_fp64; its absolute error is ~2^-52 of the origin's distance to the
+    triangle's first corner, so an origin on the triangle's plane, exact t = 0, gets a t of either
+    sign: start rays off surfaces, rtlab.spawn_rays), so every traversal returns the very same ids, ties at
     shared vertices, on kd split planes and between coplanar overlapping triangles included; with
     the others, whose t can be off by more on slivers and far from the origin, the packet and the BVH
     may report another triangle of an edge (a tie by the reference's rule,
