@@ -8,7 +8,11 @@
  *
  * Hazard - leaving through an edge or a corner: the exit point lies in cells across several faces
  * and one rope reaches only some of them (a diagonal cell touched only at the point is skipped, and
- * with it a triangle through that point: rays through mesh vertices leak). There, and where the ray
+ * with it a triangle through that point: rays through mesh vertices leak). The exit point lies on an
+ * edge of the exit face also where the ray entered the leaf through that edge (a leaf touched at the
+ * exit point alone, e.g. where the ray enters the scene box through an edge: the descent's segment
+ * starts in the box's padding, before the leaf's box, and the rope, pushed down past splits on the
+ * box's faces, misses the flat cells there); exit_leaf_box reports both. There, and where the ray
  * starts, the leaves touching that distance come from the root in tree order as in kd-restart
  * (rt_kd_restart.h, KdSegment), up to the last of the face distances tied with it (with
  * RT_CONSERVATIVE they may differ by an ulp or so, and the cell across both faces is met at the
