@@ -602,13 +602,31 @@ TAGGED_OVERLOAD = ("typedef struct { int unused; } MyWalkTag;\n"
                    + "\n}\n")
 
 
-@pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept"])
+UCN_HELPER = (f"RT_FN void r\\u00e9start({WALK_PARAMS}, Hit *hit, int any_hit)\n"
+              "{ traverse_kd_stack(RT_SCENE_ARGS, lo, hi, ray, hit, any_hit); }\n")
+DECOY_STUB = ("#if 0\nRT_FN void traverse_kd_restart(void)\n{\n    /* BEGIN SOLUTION */\n    return;\n"
+              "    /* END SOLUTION */\n}\n#endif\n")
+
+
+SLOTS = 64
+SWITCH_SLOTS = ("typedef struct {\n" + "".join(f"    KdStackEntry e{i};\n" for i in range(SLOTS)) + "} MySlots;\n"
+                "RT_FN KdStackEntry *my_slot(MySlots *s, int i)\n{\n    switch (i) {\n"
+                + "".join(f"    case {i}: return &s->e{i};\n" for i in range(1, SLOTS)) + "    }\n    return &s->e0;\n}\n")
+SWITCH_WALK = re.sub(r"stack\[([^\]]+)\]\.", r"my_slot(&stack, \1)->",
+                     COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];", "MySlots stack;"))
+
+
+@pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept", "ucn_name", "decoy_stub", "switch_slots"])
 def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     """Lab 00's walk in kd-restart, hidden three ways, each 67 / 100 on lab 03 before: behind an
     overload of ``sin`` whose PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang
     does not) the student defines too; copied into an overload of an allowed lab function (the call
     graph reads functions by source name, so it merged with lab 02's); pasted under the template's
-    kept TODO line (which made the region count as a stub, and stubs skip the structure rule)."""
+    kept TODO line (which made the region count as a stub, and stubs skip the structure rule); behind a
+    helper named with a universal character name (r\\u00e9start: clang's IR quotes such a symbol, and the
+    rules' reading of the IR skipped it, its calls and its locals); and with a decoy stub region of the
+    same function under #if 0 (the text said "stub", so the structure rule let the function off); with
+    its stack in 64 named slots picked by a switch (each slot at a constant offset: 14 / 14 on restart)."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     if route == "renamed_builtin":
@@ -619,9 +637,30 @@ def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
         replace_body(path, "traverse_kd_restart", "    MyWalkTag tag;\n    intersect_ray_tri_watertight(tag, "
                      "RT_SCENE_ARGS, scene_min, scene_max, ray, hit, any_hit);", TAGGED_OVERLOAD)
         why = "intersect_ray_tri_watertight is defined as an overload (__attribute__((overloadable)))"
+    elif route == "ucn_name":
+        replace_body(path, "traverse_kd_restart", "    r\\u00e9start(RT_SCENE_ARGS, scene_min, scene_max, ray, hit, "
+                     "any_hit);", UCN_HELPER)
+        why = "a backslash outside a string or a comment"
+    elif route == "decoy_stub":
+        replace_body(path, "traverse_kd_restart", COPIED_STACK, DECOY_STUB)
+        why = "traverse_kd_restart keeps a per-ray private array stack"
+    elif route == "switch_slots":
+        assert "my_slot(&stack, sp - 1)->t_stop" in SWITCH_WALK and "stack[" not in SWITCH_WALK
+        replace_body(path, "traverse_kd_restart", SWITCH_WALK, SWITCH_SLOTS)
+        why = "traverse_kd_restart keeps a per-ray private array stack, MySlots indexed by a variable"
     else:
         todo = "    /* TODO (lab 03_traversal): write traverse_kd_restart here; labs/03_traversal/README.md says. */\n"
         replace_body(path, "traverse_kd_restart", todo + COPIED_STACK)
         why = "traverse_kd_restart keeps a per-ray private array stack"
     t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
     assert t.score == 0 and why in t.output, t.output
+
+
+def test_the_ir_readers_read_quoted_symbols_and_refuse_what_they_cannot_read():
+    from rtlab.course.lab_calls import ir_call_graph, unread_definitions
+    ir = ('define void @"r\\C3\\A9start"(ptr %a) {\nentry:\n  call void @traverse_kd_stack(ptr %a)\n  ret void\n}\n'
+          'define void @traverse_kd_restart(ptr %a) {\nentry:\n  call void @"r\\C3\\A9start"(ptr %a)\n  ret void\n}\n')
+    graph = ir_call_graph(ir)
+    assert graph == {"r\\C3\\A9start": {"traverse_kd_stack"}, "traverse_kd_restart": {"r\\C3\\A9start"}}
+    assert unread_definitions(ir) == 0
+    assert unread_definitions(ir + 'define void @"bad\\ZZ"() {\n  ret void\n}\n') == 1

@@ -151,7 +151,7 @@ class Recorder:
         if not calls and not shape:
             return None
         from rtlab.course.deps import PreprocessorError, opencl_ir
-        from rtlab.course.lab_calls import ir_call_graph, lab_call_problem, overloaded_lab_function
+        from rtlab.course.lab_calls import ir_call_graph, lab_call_problem, overloaded_lab_function, unread_definitions
         from rtlab.course.structure import structure_problem
         from rtlab.course.submission import REFUSED_MARK
         from rtlab.errors import KernelBuildError
@@ -165,6 +165,8 @@ class Recorder:
         except (PreprocessorError, RuntimeError, MemoryError) as e:
             first = str(e).strip().splitlines()[:3]
             return f"{REFUSED_MARK}{path.name}: its calls could not be read for the lab-call rule: {' '.join(first)}"
+        if unread_definitions(ir):
+            return f"{REFUSED_MARK}{path.name}: {unread_definitions(ir)} of its functions could not be read for the lab-call rule"
         graph = ir_call_graph(ir)
         problem = overloaded_lab_function(ir, (self.lab_calls or {}).get("owners") or {}) or \
             (lab_call_problem(graph, self.lab_calls) if calls else None) or \

@@ -250,6 +250,9 @@ def check_source(text: str, relpath: str, rules: SourceRules, deadline_at: float
             refuse(t.line, "a byte outside ASCII outside a comment or a string (a byte-order mark, an accented "
                            "letter, a Unicode quote or space?): kernel code is ASCII; save the file as ASCII or UTF-8 "
                            "without a byte-order mark, with non-ASCII text only in comments")
+        elif t.kind == "punct" and t.value == "\\":
+            refuse(t.line, "a backslash outside a string or a comment (a universal character name such as \\u00e9 "
+                           "in a name?): kernel code names things in plain ASCII letters, digits and _")
         elif t.kind == "ident" and t.text in FORBIDDEN_IDENTIFIERS:
             refuse(t.line, f"{FORBIDDEN_IDENTIFIERS[t.text]} ({t.text}) is not allowed in submitted kernels")
         elif t.kind == "ident" and (_provided_name(t.text) or t.text in rules.runtime_macros) \
