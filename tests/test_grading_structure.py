@@ -208,9 +208,9 @@ FORMS = {
         "", None,
         r"^traverse_kd_ropes keeps a per-ray private array st, a struct holding \[\d+ x KdStackEntry\] = \d+ B"),
     "stack in a wide vector": (
-        "traverse_kd_restart", "    uint16 trail = (uint16)(0u);\n    trail.s3 = 1u;\n    (void)trail;\n"
+        "traverse_kd_restart", "    ulong16 trail = (ulong16)(0ul);\n    trail.s3 = 1ul;\n    (void)trail;\n"
         + region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart"), "", None,
-        r"^traverse_kd_restart keeps a per-ray private array trail, <16 x i32> = 64 B"),
+        r"^traverse_kd_restart keeps a per-ray private array trail, <16 x i64> = 128 B"),
     "packet walking ray by ray": (
         "traverse_kd_packet", "    if (!valid)\n        return;\n"
         + region_body(f"{SHARED}/rt_kd_restart.h", "traverse_kd_restart"), '#include "rt_kd_restart.h"\n\n', None,
@@ -616,7 +616,28 @@ SWITCH_WALK = re.sub(r"stack\[([^\]]+)\]\.", r"my_slot(&stack, \1)->",
                      COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];", "MySlots stack;"))
 
 
-@pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept", "ucn_name", "decoy_stub", "switch_slots"])
+TERNARY_SLOTS = SWITCH_SLOTS.split("RT_FN KdStackEntry *my_slot")[0] + (
+    "RT_FN KdStackEntry *my_slot(MySlots *s, int i)\n{\n    return "
+    + " ".join(f"i == {i} ? &s->e{i} :" for i in range(SLOTS - 1)) + f" &s->e{SLOTS - 1};\n}}\n")
+COPY_SLOTS = SWITCH_SLOTS.split("RT_FN KdStackEntry *my_slot")[0] + (
+    "RT_FN void slot_put(MySlots *s, int i, KdStackEntry v)\n{\n    switch (i) {\n"
+    + "".join(f"    case {i}: s->e{i} = v; break;\n" for i in range(SLOTS)) + "    }\n}\n"
+    "RT_FN KdStackEntry slot_get(MySlots *s, int i)\n{\n    KdStackEntry v = s->e0;\n    switch (i) {\n"
+    + "".join(f"    case {i}: v = s->e{i}; break;\n" for i in range(1, SLOTS)) + "    }\n    return v;\n}\n")
+COPY_WALK = (COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];", "MySlots stack;\n    KdStackEntry top;")
+             .replace("stack[sp].node = second;", "top.node = second;")
+             .replace("stack[sp].tmin = entry_tmin;", "top.tmin = entry_tmin;")
+             .replace("stack[sp].tmax = tmax;", "top.tmax = tmax;")
+             .replace("stack[sp].t_stop = sp > 0 ? rt_min(entry_tmin, stack[sp - 1].t_stop) : entry_tmin;",
+                      "top.t_stop = sp > 0 ? rt_min(entry_tmin, slot_get(&stack, sp - 1).t_stop) : entry_tmin;\n"
+                      "                slot_put(&stack, sp, top);")
+             .replace("stack[sp - 1].t_stop", "slot_get(&stack, sp - 1).t_stop")
+             .replace("node = stack[sp].node;", "top = slot_get(&stack, sp);\n        node = top.node;")
+             .replace("tmin = stack[sp].tmin;", "tmin = top.tmin;").replace("tmax = stack[sp].tmax;", "tmax = top.tmax;"))
+
+
+@pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept", "ucn_name", "decoy_stub", "switch_slots",
+                                   "ternary_slots", "copied_slots"])
 def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     """Lab 00's walk in kd-restart, hidden three ways, each 67 / 100 on lab 03 before: behind an
     overload of ``sin`` whose PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang
@@ -626,7 +647,8 @@ def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     helper named with a universal character name (r\\u00e9start: clang's IR quotes such a symbol, and the
     rules' reading of the IR skipped it, its calls and its locals); and with a decoy stub region of the
     same function under #if 0 (the text said "stub", so the structure rule let the function off); with
-    its stack in 64 named slots picked by a switch (each slot at a constant offset: 14 / 14 on restart)."""
+    its stack in 64 named slots picked by a switch (each slot at a constant offset: 14 / 14 on restart),
+    by a chain of ?: (merged in a phi, 19 / 19), or moved by struct copies in a switch's cases (5 / 5)."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     if route == "renamed_builtin":
@@ -644,6 +666,11 @@ def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     elif route == "decoy_stub":
         replace_body(path, "traverse_kd_restart", COPIED_STACK, DECOY_STUB)
         why = "traverse_kd_restart keeps a per-ray private array stack"
+    elif route in ("ternary_slots", "copied_slots"):
+        walk = SWITCH_WALK if route == "ternary_slots" else COPY_WALK
+        assert "stack[" not in walk
+        replace_body(path, "traverse_kd_restart", walk, TERNARY_SLOTS if route == "ternary_slots" else COPY_SLOTS)
+        why = "traverse_kd_restart keeps a per-ray private array stack, MySlots indexed by a variable"
     elif route == "switch_slots":
         assert "my_slot(&stack, sp - 1)->t_stop" in SWITCH_WALK and "stack[" not in SWITCH_WALK
         replace_body(path, "traverse_kd_restart", SWITCH_WALK, SWITCH_SLOTS)
@@ -664,3 +691,36 @@ def test_the_ir_readers_read_quoted_symbols_and_refuse_what_they_cannot_read():
     assert graph == {"r\\C3\\A9start": {"traverse_kd_stack"}, "traverse_kd_restart": {"r\\C3\\A9start"}}
     assert unread_definitions(ir) == 0
     assert unread_definitions(ir + 'define void @"bad\\ZZ"() {\n  ret void\n}\n') == 1
+
+
+SLAB_CLIP = """RT_FN int my_clip(const Ray *ray, float4 lo, float4 hi, float *t0, float *t1)
+{
+    float o[3] = {ray->o.x, ray->o.y, ray->o.z};
+    float inv[3] = {ray->inv_d.x, ray->inv_d.y, ray->inv_d.z};
+    float bl[3] = {lo.x, lo.y, lo.z};
+    float bh[3] = {hi.x, hi.y, hi.z};
+    float d[3] = {ray->d.x, ray->d.y, ray->d.z};
+    if (d[0] == 0.0f && d[1] == 0.0f && d[2] == 0.0f) return 0;
+    float a = ray->tmin, b = ray->tmax;
+    for (int k = 0; k < 3; ++k) {
+        float n = (bl[k] - o[k]) * inv[k], f = (bh[k] - o[k]) * inv[k];
+        if (n != n || f != f) continue;
+        a = fmax(a, fmin(n, f));
+        b = fmin(b, fmax(n, f));
+    }
+    *t0 = a; *t1 = b;
+    return a <= b;
+}
+"""
+
+
+def test_a_restart_with_a_slab_clip_of_per_axis_arrays_passes(tmp_path):
+    """A student's restart that clips with five per-axis arrays in a helper of its own (60 B, indexed by
+    the axis) is legitimate: it was refused at 48 B of slack."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    path = sub / SHARED / FILES["traverse_kd_restart"]
+    body = region_body(f"{SHARED}/{FILES['traverse_kd_restart']}", "traverse_kd_restart")
+    replace_body(path, "traverse_kd_restart", "    float c0, c1;\n    if (!my_clip(ray, scene_min, scene_max, &c0, &c1))\n"
+                 "        return;\n" + body, SLAB_CLIP)
+    t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
+    assert t.passed, t.output

@@ -67,6 +67,56 @@ SLOT_POINTERS = 8
 SLOT_FIELDS = 24
 
 
+class _Slots:
+    """Where each address value of one function may point: (source, constant GEP indices) pairs, merged
+    through phis, selects, casts, pointer locals and returned parameters, so that a slot picked by
+    control flow (a switch, a chain of ?:, a case per field) shows as the many places it is."""
+
+    def __init__(self, taint):
+        self.taint = taint
+        self.locs: dict = {}        # value -> {(source, key)}
+        self.held: dict = {}        # source -> {(source, key)} of the addresses stored in it
+        self.touched: dict = {}     # source -> keys it is read or written at
+
+    def of(self, v):
+        if not v:
+            return set()
+        return self.locs.get(v) or {(src, ()) for src in self.taint.get(v, ())}
+
+    def grow(self, res, places) -> bool:
+        if res and places and not places <= self.locs.setdefault(res, set()):
+            self.locs[res] |= places
+            return True
+        return False
+
+    def gep(self, res, base, indices) -> bool:
+        return self.grow(res, {(src, key + indices) for src, key in self.of(base)})
+
+    def store(self, value, addr) -> bool:
+        self.touch(addr)
+        places, grew = self.of(value) if value in self.locs or value in self.taint else set(), False
+        for src in self.taint.get(addr, ()) if addr else ():
+            if places and not places <= self.held.setdefault(src, set()):
+                self.held[src] |= places
+                grew = True
+        return grew
+
+    def load(self, res, addr) -> bool:
+        self.touch(addr)
+        return self.grow(res, set().union(*(self.held.get(src, set()) for src in self.taint.get(addr, ()))))
+
+    def touch(self, addr):
+        for src, key in self.of(addr):
+            if key:
+                self.touched.setdefault(src, set()).add(key)
+
+    def indexed(self) -> set:
+        """Sources reached as slots: any value that may point at SLOT_POINTERS places, or one source
+        read or written at SLOT_FIELDS constant offsets."""
+        out = {src for places in self.locs.values() if len(places) >= SLOT_POINTERS for src, _ in places}
+        return out | {src for src, keys in self.touched.items() if len(keys) >= SLOT_FIELDS}
+
+
 # Why long: one data-flow pass to a fixed point over every instruction kind that moves an address (GEP,
 # casts, selects, phis, loads and stores through locals, calls with per-function summaries): split, each
 # part would need the whole state.
@@ -108,8 +158,7 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
         for symbol, params, code in funcs:
             taint = {p: {("p", i)} for i, p in enumerate(params) if p}     # value -> what it points into
             contents: dict = {}                 # source -> sources whose addresses it holds
-            const_key: dict = {}                # address value -> its constant GEP indices from its source
-            slots: dict = {}                    # (what is written to or through, source) -> keys seen
+            slots = _Slots(taint)               # where each address may point: slots picked by control flow
             vec_from: dict = {}                 # vector value -> the memory it was loaded from
             indexed_params, returned = summary[symbol]
 
@@ -149,23 +198,12 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                         srcs = t(v[-1]) if v else set()
                         changed |= add(res, set().union(*(contents.get(s, set()) for s in srcs)))
                         changed |= add(res, set(srcs), vec_from)
+                        changed |= slots.load(res, v[-1] if v else None)
                     elif op == "store":
                         parts = _split_top(rest)
                         value, addr = vals(parts[0]), vals(parts[1]) if len(parts) > 1 else []
                         tv, ta = t(value[-1] if value else None), t(addr[-1] if addr else None)
-                        # Slots picked by control flow (a switch over fixed fields) are an index too:
-                        # a pointer local given SLOT_POINTERS addresses at different constant offsets
-                        # of one object, or one object written at SLOT_FIELDS constant offsets
-                        for kind, v, srcs, limit in (("ptr", value, tv, SLOT_POINTERS),
-                                                     ("field", addr, ta, SLOT_FIELDS)):
-                            key = const_key.get(v[-1]) if v else None
-                            if key is None:
-                                continue
-                            for src in srcs:
-                                seen = slots.setdefault((kind, frozenset(ta) if kind == "ptr" else None, src), set())
-                                seen.add(key)
-                                if len(seen) >= limit:
-                                    mark({src})
+                        changed |= slots.store(value[-1] if value else None, addr[-1] if addr else None)
                         if tv:
                             if not ta or any(s[0] == "p" for s in ta):
                                 mark(tv | held(tv))             # a local's address leaves the frame
@@ -181,7 +219,7 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                         if any(vals(p) for p in parts[2:]):
                             mark(tb)
                         elif res and tb:
-                            const_key[res] = const_key.get(base[-1], ()) + tuple(p.strip() for p in parts[2:])
+                            changed |= slots.gep(res, base[-1], tuple(p.strip() for p in parts[2:]))
                     elif op in ("extractelement", "insertelement"):
                         parts = _split_top(rest)
                         lane = parts[1 if op == "extractelement" else 2] if len(parts) > 1 else ""
@@ -210,6 +248,8 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                         if callee.startswith(_HARMLESS_INTRINSICS):
                             continue
                         if callee.startswith(("llvm.memcpy", "llvm.memmove", "llvm.memset")):
+                            for a in args[:2]:
+                                slots.touch(a[-1] if a else None)     # a struct copied into or out of a slot
                             if len(args) > 2 and args[2]:
                                 mark(set().union(*targs[:2]))       # a variable length
                             elif callee.startswith(("llvm.memcpy", "llvm.memmove")) and len(targs) > 1:
@@ -231,14 +271,18 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                                 mark(ta, summary[callee][0][i])
                             if callee in summary and i in summary[callee][1]:
                                 changed |= add(res, set(ta))
+                                changed |= slots.grow(res, slots.of(args[i][-1]))
                     elif op == "ret":
                         for v in vals(rest):
                             returned |= {s[1] for s in t(v) if s[0] == "p"}
                     elif res:
                         changed |= add(res, set().union(*(t(v) for v in vals(rest))))
+                        changed |= slots.grow(res, set().union(*(slots.of(v) for v in vals(rest)
+                                                                 if v in slots.locs or v in taint)))
                         if op == "shufflevector":              # a float3 is loaded as 4 lanes, then shuffled
                             changed |= add(res, set().union(*(vec_from.get(v, set()) for v in vals(rest))),
                                            vec_from)
+            mark(slots.indexed())
         if state() == before:
             break
     return marked

@@ -81,10 +81,12 @@ WHY = {
     "traverse_kd_packet": "a packet keeps ONE stack for all its rays in the block's local memory (the "
                           "KdPacketShared *sh it is given), not a stack for each ray",
 }
-# Indexed bytes beyond the reference's that a legitimate traversal may need: the per-axis arrays of the
-# ray's origin, direction and inverse (3 x float[3], 36 B), or a copy of the Ray and a float4 read by a
-# variable lane (16 B each), with room; three KdStackEntry, less than a uint16 (64 B).
-SLACK_BYTES = 48
+# Indexed bytes beyond the reference's that a legitimate traversal may need: the per-axis arrays of a
+# slab clip (origin, direction, inverse, the box's corners, entry and exit distances: up to 7 x
+# float[3], 84 B; 60 B in one a student wrote was refused at 48 B), or a copy of the Ray and a float4
+# read by a variable lane (16 B each). A full stack at the grading scenes' depth (RT_STACK_SIZE 29)
+# does not fit: 116 B as bare node indices, 464 B as lab 00's entries.
+SLACK_BYTES = 96
 LOCAL_FACTOR = 2        # the packet's local state: twice the reference's leaves room for more fields per entry
 PROBE_STACK = (24, 40)  # RT_STACK_SIZE values the reference is measured at (the stackless ones stop above 64)
 
