@@ -636,8 +636,26 @@ COPY_WALK = (COPIED_STACK.replace("KdStackEntry stack[RT_STACK_SIZE];", "MySlots
              .replace("tmin = stack[sp].tmin;", "tmin = top.tmin;").replace("tmax = stack[sp].tmax;", "tmax = top.tmax;"))
 
 
+SEPARATE_SLOTS = ("#define MY_PUT(i, v) switch (i) { " + " ".join(f"case {i}: e{i} = (v); break;" for i in range(SLOTS))
+                  + " }\n#define MY_GET(i, v) switch (i) { " + " ".join(f"case {i}: (v) = e{i}; break;" for i in range(SLOTS))
+                  + " }\n")
+SEPARATE_WALK = (COPIED_STACK
+                 .replace("KdStackEntry stack[RT_STACK_SIZE];",
+                          "KdStackEntry " + ", ".join(f"e{i}" for i in range(SLOTS)) + ", top, below;")
+                 .replace("stack[sp].node = second;", "top.node = second;")
+                 .replace("stack[sp].tmin = entry_tmin;", "top.tmin = entry_tmin;")
+                 .replace("stack[sp].tmax = tmax;", "top.tmax = tmax;\n                if (sp > 0) { MY_GET(sp - 1, below) }")
+                 .replace("stack[sp].t_stop = sp > 0 ? rt_min(entry_tmin, stack[sp - 1].t_stop) : entry_tmin;",
+                          "top.t_stop = sp > 0 ? rt_min(entry_tmin, below.t_stop) : entry_tmin;\n"
+                          "                MY_PUT(sp, top)")
+                 .replace("        if (sp == 0 || t_cull(hit->t) < stack[sp - 1].t_stop",
+                          "        if (sp > 0) { MY_GET(sp - 1, below) }\n        if (sp == 0 || t_cull(hit->t) < below.t_stop")
+                 .replace("node = stack[sp].node;", "MY_GET(sp, top)\n        node = top.node;")
+                 .replace("tmin = stack[sp].tmin;", "tmin = top.tmin;").replace("tmax = stack[sp].tmax;", "tmax = top.tmax;"))
+
+
 @pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept", "ucn_name", "decoy_stub", "switch_slots",
-                                   "ternary_slots", "copied_slots"])
+                                   "ternary_slots", "copied_slots", "separate_slots"])
 def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     """Lab 00's walk in kd-restart, hidden three ways, each 67 / 100 on lab 03 before: behind an
     overload of ``sin`` whose PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang
@@ -648,7 +666,8 @@ def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
     rules' reading of the IR skipped it, its calls and its locals); and with a decoy stub region of the
     same function under #if 0 (the text said "stub", so the structure rule let the function off); with
     its stack in 64 named slots picked by a switch (each slot at a constant offset: 14 / 14 on restart),
-    by a chain of ?: (merged in a phi, 19 / 19), or moved by struct copies in a switch's cases (5 / 5)."""
+    by a chain of ?: (merged in a phi, 19 / 19), or moved by struct copies in a switch's cases (5 / 5);
+    or in 64 separate locals a switch picks among (5 / 5)."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     if route == "renamed_builtin":
@@ -671,6 +690,10 @@ def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
         assert "stack[" not in walk
         replace_body(path, "traverse_kd_restart", walk, TERNARY_SLOTS if route == "ternary_slots" else COPY_SLOTS)
         why = "traverse_kd_restart keeps a per-ray private array stack, MySlots indexed by a variable"
+    elif route == "separate_slots":
+        assert "stack[" not in SEPARATE_WALK
+        replace_body(path, "traverse_kd_restart", SEPARATE_WALK, SEPARATE_SLOTS)
+        why = "traverse_kd_restart keeps a per-ray private array e"
     elif route == "switch_slots":
         assert "my_slot(&stack, sp - 1)->t_stop" in SWITCH_WALK and "stack[" not in SWITCH_WALK
         replace_body(path, "traverse_kd_restart", SWITCH_WALK, SWITCH_SLOTS)

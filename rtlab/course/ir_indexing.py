@@ -67,6 +67,31 @@ SLOT_POINTERS = 8
 SLOT_FIELDS = 24
 
 
+_SWITCH_RE = re.compile(r'^\s+switch \S+ [^,]+, label %[\w.$-]+ \[(.*?)\]', re.M | re.S)
+_CASE_RE = re.compile(r'label %([\w.$-]+)')
+_BLOCK_RE = re.compile(r'^([\w.$-]+):', re.M)
+
+
+def switch_slots(body: str) -> set[str]:
+    """The allocas a ``switch`` picks among: those its case blocks touch that not every case block
+    touches, when they are SLOT_POINTERS or more (64 separate locals, or 8 structs of slots, one a case:
+    a stack indexed by control flow, whatever the slots' spelling)."""
+    allocas = {m.group(1) for m in _ALLOCA_RE.finditer(body)}
+    if not allocas or "switch " not in body:
+        return set()
+    starts = list(_BLOCK_RE.finditer(body))
+    blocks = {m.group(1): body[m.end():starts[k + 1].start() if k + 1 < len(starts) else len(body)]
+              for k, m in enumerate(starts)}
+    out: set[str] = set()
+    for sw in _SWITCH_RE.finditer(body):
+        touched = [set(_VALUE_RE.findall(blocks.get(label, ""))) & allocas for label in _CASE_RE.findall(sw.group(1))]
+        if len(touched) >= SLOT_POINTERS:
+            picked = set().union(*touched) - set.intersection(*touched)
+            if len(picked) >= SLOT_POINTERS:
+                out |= picked
+    return out
+
+
 class _Slots:
     """Where each address value of one function may point: (source, constant GEP indices) pairs, merged
     through phis, selects, casts, pointer locals and returned parameters, so that a slot picked by
@@ -143,6 +168,7 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                 code.append((m.group(1), m.group(2), m.group(3).split(", !")[0]))
         funcs.append((symbol, params, code))
     defined = {symbol for symbol, _, _ in funcs}
+    switched = {symbol: switch_slots(body) for symbol, body in bodies(ir)}
     summary = {symbol: ({}, set()) for symbol in defined}    # ({parameter: bytes indexed}, parameters returned)
     marked: dict = {}
 
@@ -282,7 +308,7 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                         if op == "shufflevector":              # a float3 is loaded as 4 lanes, then shuffled
                             changed |= add(res, set().union(*(vec_from.get(v, set()) for v in vals(rest))),
                                            vec_from)
-            mark(slots.indexed())
+            mark(slots.indexed() | {("a", name) for name in switched[symbol]})
         if state() == before:
             break
     return marked
