@@ -747,3 +747,39 @@ def test_a_restart_with_a_slab_clip_of_per_axis_arrays_passes(tmp_path):
                  "        return;\n" + body, SLAB_CLIP)
     t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
     assert t.passed, t.output
+
+
+STATE_CLIP = """typedef struct { float o[3], inv[3], bl[3], bh[3], d[3]; float a, b; float4 lo4, hi4; int side, planes, pass; } ClipState;
+RT_FN int my_clip(const Ray *ray, float4 lo, float4 hi, float *t0, float *t1)
+{
+    ClipState w;
+    w.o[0] = ray->o.x; w.o[1] = ray->o.y; w.o[2] = ray->o.z;
+    w.inv[0] = ray->inv_d.x; w.inv[1] = ray->inv_d.y; w.inv[2] = ray->inv_d.z;
+    w.bl[0] = lo.x; w.bl[1] = lo.y; w.bl[2] = lo.z;
+    w.bh[0] = hi.x; w.bh[1] = hi.y; w.bh[2] = hi.z;
+    w.d[0] = ray->d.x; w.d[1] = ray->d.y; w.d[2] = ray->d.z;
+    w.lo4 = lo; w.hi4 = hi; w.side = 0; w.planes = 0; w.pass = 0;
+    w.a = ray->tmin; w.b = ray->tmax;
+    for (int k = 0; k < 3; ++k) {
+        float n = (w.bl[k] - w.o[k]) * w.inv[k], f = (w.bh[k] - w.o[k]) * w.inv[k];
+        if (n != n || f != f) continue;
+        w.a = fmax(w.a, fmin(n, f));
+        w.b = fmin(w.b, fmax(n, f));
+    }
+    *t0 = w.a; *t1 = w.b;
+    return w.a <= w.b;
+}
+"""
+
+
+def test_a_restart_whose_state_struct_holds_per_axis_arrays_passes(tmp_path):
+    """Per-axis arrays inside a state struct of over 96 B, indexed by the axis: only its arrays count
+    (a variable index ranges over its array, not the struct), so the restart passes; the whole struct
+    was counted and refused."""
+    sub = reference_files(STEP03, tmp_path / "sub")
+    path = sub / SHARED / FILES["traverse_kd_restart"]
+    body = region_body(f"{SHARED}/{FILES['traverse_kd_restart']}", "traverse_kd_restart")
+    replace_body(path, "traverse_kd_restart", "    float c0, c1;\n    if (!my_clip(ray, scene_min, scene_max, &c0, &c1))\n"
+                 "        return;\n" + body, STATE_CLIP)
+    t = grade(STEP03, sub, tests=["trace_restart"]).test("trace_restart")
+    assert t.passed, t.output

@@ -84,12 +84,34 @@ def switch_slots(body: str) -> set[str]:
               for k, m in enumerate(starts)}
     out: set[str] = set()
     for sw in _SWITCH_RE.finditer(body):
-        touched = [set(_VALUE_RE.findall(blocks.get(label, ""))) & allocas for label in _CASE_RE.findall(sw.group(1))]
+        labels = list(dict.fromkeys(_CASE_RE.findall(sw.group(1))))      # cases sharing a block count once
+        touched = [set(_VALUE_RE.findall(blocks.get(label, ""))) & allocas for label in labels]
         if len(touched) >= SLOT_POINTERS:
             picked = set().union(*touched) - set.intersection(*touched)
             if len(picked) >= SLOT_POINTERS:
                 out |= picked
     return out
+
+
+def _variable_extent(types: TypeTable, parts: list[str]) -> int | None:
+    """Bytes a getelementptr's first variable index ranges over: the array or vector it indexes inside
+    the source type (a per-axis ``float o[3]`` of a larger state struct: 12 B, not the struct), or None
+    (all of the object) where the variable index is the first one (pointer arithmetic) or the type
+    cannot be read."""
+    try:
+        ty = types.parse(parts[0].replace("inbounds", "").strip())
+        for k, index in enumerate(parts[2:]):
+            if _VALUE_RE.search(index) and k > 0:
+                return size_of(ty) if ty.kind in ("array", "vector") else None
+            if _VALUE_RE.search(index):
+                return None
+            if k == 0:
+                continue                       # the first index steps over whole objects
+            n = int(index.strip().split()[-1])
+            ty = ty.members[n] if ty.kind == "struct" else ty.elem
+    except (IndexError, ValueError, AssertionError, AttributeError, TypeError):
+        return None
+    return None
 
 
 class _Slots:
@@ -243,7 +265,7 @@ def indexed_allocas(ir: str, types: TypeTable) -> dict[tuple[str, str], int | No
                         tb = t(base[-1] if base else None)
                         changed |= add(res, set(tb))
                         if any(vals(p) for p in parts[2:]):
-                            mark(tb)
+                            mark(tb, _variable_extent(types, parts))
                         elif res and tb:
                             changed |= slots.gep(res, base[-1], tuple(p.strip() for p in parts[2:]))
                     elif op in ("extractelement", "insertelement"):
