@@ -59,10 +59,11 @@ def _inside(text: str, open_at: int) -> str:
     return text[open_at + 1:]
 
 
-# A stack kept in fixed slots and reached by control flow (a switch returning &slots->e5): a pointer
-# local that holds this many addresses at different constant offsets of one object, or one object
-# written at this many constant offsets, is taken as indexed (lab 00's walk over 64 named slots scored
-# 14 / 14 on kd-restart). The references' own locals stay well below: a Ray, a Hit, a KdSegment.
+# A stack kept in fixed slots and reached by control flow is indexed too, whatever the spelling: a
+# value that may point at SLOT_POINTERS places (a switch or a ?: chain returning &slots->e5), an object
+# read or written at SLOT_FIELDS constant offsets (_Slots), or SLOT_POINTERS locals a switch's cases pick
+# among (switch_slots). Lab 00's walk over 64 named slots scored 14 / 14 on kd-restart, over 64 separate
+# locals 5 / 5. The references stay well below: no value points at 2 places, no object has 8 offsets.
 SLOT_POINTERS = 8
 SLOT_FIELDS = 24
 
