@@ -657,17 +657,14 @@ SEPARATE_WALK = (COPIED_STACK
 @pytest.mark.parametrize("route", ["renamed_builtin", "overload", "todo_kept", "ucn_name", "decoy_stub", "switch_slots",
                                    "ternary_slots", "copied_slots", "separate_slots"])
 def test_a_walk_hidden_from_the_rules_scores_nothing(route, tmp_path):
-    """Lab 00's walk in kd-restart, hidden three ways, each 67 / 100 on lab 03 before: behind an
-    overload of ``sin`` whose PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang
-    does not) the student defines too; copied into an overload of an allowed lab function (the call
-    graph reads functions by source name, so it merged with lab 02's); pasted under the template's
-    kept TODO line (which made the region count as a stub, and stubs skip the structure rule); behind a
-    helper named with a universal character name (r\\u00e9start: clang's IR quotes such a symbol, and the
-    rules' reading of the IR skipped it, its calls and its locals); and with a decoy stub region of the
-    same function under #if 0 (the text said "stub", so the structure rule let the function off); with
-    its stack in 64 named slots picked by a switch (each slot at a constant offset: 14 / 14 on restart),
-    by a chain of ?: (merged in a phi, 19 / 19), or moved by struct copies in a switch's cases (5 / 5);
-    or in 64 separate locals a switch picks among (5 / 5)."""
+    """Lab 00's walk in kd-restart, hidden from the rules, is refused: behind an overload of ``sin`` whose
+    PoCL name ``_cl_sin`` (its headers rename the built-ins; the rules' clang does not) the student
+    defines too; copied into an overload of an allowed lab function (the call graph reads functions by
+    source name); pasted under the template's kept TODO line (a stub is told by its code, not its
+    comments); behind a helper named with a universal character name (r\\u00e9start, which clang's IR
+    quotes); with a decoy stub region of the same function under #if 0; with its stack in 64 named
+    slots picked by a switch or a chain of ?: (merged in a phi), moved by struct copies in a switch's
+    cases, or in 64 separate locals a switch picks among."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     if route == "renamed_builtin":
@@ -763,8 +760,8 @@ RT_FN int my_clip(const Ray *ray, float4 lo, float4 hi, float *t0, float *t1)
 @pytest.mark.parametrize("clip", ["arrays", "state_struct"])
 def test_a_restart_with_a_slab_clip_of_per_axis_arrays_passes(clip, tmp_path):
     """A student's restart that clips with per-axis arrays indexed by the axis, in a helper of its own,
-    is legitimate: five arrays (60 B) were refused at 48 B of slack, and the same arrays inside a state
-    struct of over 96 B were counted as the whole struct (a variable index ranges over its array)."""
+    is legitimate: five arrays (60 B, within the slack), or the same arrays inside a state struct of over
+    96 B (a variable index counts the array it ranges over, not the struct)."""
     sub = reference_files(STEP03, tmp_path / "sub")
     path = sub / SHARED / FILES["traverse_kd_restart"]
     body = region_body(f"{SHARED}/{FILES['traverse_kd_restart']}", "traverse_kd_restart")

@@ -183,9 +183,9 @@ def test_stacked_copies_of_one_triangle_pick_the_lowest_id():
 
 def test_copies_of_a_tilted_triangle_in_any_vertex_order_pick_the_lowest_id():
     """Copies of one tilted triangle listed with their corners rotated or reversed lie at the same t
-    exactly, so the tie rule gives the lowest id. The reference's plane t started from the first-listed
-    corner, so a rotated copy's double t differed in its last bits and won 40 of 200 rays; it now
-    starts from the least corner (canonical_corners), in the numpy and numba twins alike."""
+    exactly, so the tie rule gives the lowest id: the reference's plane t starts from the least corner
+    (canonical_corners), in the numpy and numba twins alike, so every copy's double t is the same to
+    the bit (from the first-listed corner, a rotated copy's t differs in its last bits)."""
     from rtlab.reference.watertight import plane_t_numpy
     rng = np.random.default_rng(3)
     v = np.array([[0.1, 0.2, 0.3], [1.3, -0.4, 0.7], [-0.2, 0.9, -0.5]], np.float32)

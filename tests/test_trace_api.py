@@ -328,10 +328,9 @@ def test_directions_are_rescaled_in_their_own_dtype(backend, sphere_scene, lengt
 
 
 def test_a_t_beyond_float64_and_long_doubles_beyond_float64_are_errors(backend, sphere_scene):
-    """A direction so short that a hit's t overflows even float64 (5e-324) came back as a hit at t =
-    inf (with a numpy overflow warning); a long double origin or direction beyond float64's range
-    became inf or 0 in the cast, a silent miss. Each is now a RtlabError naming the ray; a long double
-    within range traces as its float64 value."""
+    """A direction so short that a hit's t overflows even float64 (5e-324), and a long double origin
+    or direction beyond float64's range (inf or 0 in the cast: a silent miss), are RtlabErrors naming
+    the ray, with no numpy warning; a long double within range traces as its float64 value."""
     import warnings
     for length in (5e-324, 1e-310):
         with warnings.catch_warnings():

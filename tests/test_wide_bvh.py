@@ -393,8 +393,8 @@ def test_gpu_wide_bvhs_match_bvh_on_the_benchmark_views():
 def test_axis_aligned_rays_from_far_away_hit_small_triangles(backend, traversal):
     """Rays along +z (two zero direction components) from up to 3e38 away, through the inside of
     triangles of size 2^-20 in a unit grid: well-conditioned hits (barycentrics 0.4 and 0.2, exact in
-    any arithmetic), so every traversal must return the reference's ids exactly. bvh8 missed them from
-    2^43 away: its quantised slab for a zero component spanned only 2^64 x the slack in t."""
+    any arithmetic), so every traversal must return the reference's ids exactly: bvh8's quantised slab
+    for a zero component spans only 2^64 x the slack in t unless padded by the ray's length."""
     n, size = 8, 2.0 ** -20
     grid = [(i / n, j / n) for i in range(n) for j in range(n)]
     v = np.array([[x + dx * size, y + dy * size, 0.0] for x, y in grid for dx, dy in ((0, 0), (1, 0), (0, 1))])

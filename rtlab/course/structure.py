@@ -83,7 +83,7 @@ WHY = {
 }
 # Indexed bytes beyond the reference's that a legitimate traversal may need: the per-axis arrays of a
 # slab clip (origin, direction, inverse, the box's corners, entry and exit distances: up to 7 x
-# float[3], 84 B; 60 B in one a student wrote was refused at 48 B), or a copy of the Ray and a float4
+# float[3], 84 B), or a copy of the Ray and a float4
 # read by a variable lane (16 B each). A full stack at the grading scenes' depth (RT_STACK_SIZE 29)
 # does not fit: 116 B as bare node indices, 464 B as lab 00's entries.
 SLACK_BYTES = 96
