@@ -125,8 +125,9 @@ def test_a_build_error_in_the_one_text_names_the_file_and_line(tmp_path, pocl):
 def test_a_grading_test_compiles_its_opencl_programs_as_one_text():
     from types import SimpleNamespace
     from rtlab.course.run_test import Recorder
-    for language, allowed, wired in (("opencl", [], True), ("opencl", None, False), ("cuda", [], False)):
-        fake = SimpleNamespace(language=language, compile=lambda *a: None, one_text=None)
+    for language, pocl, allowed, wired in (("opencl", True, [], True), ("opencl", True, None, False),
+                                           ("opencl", False, [], False), ("cuda", False, [], False)):
+        fake = SimpleNamespace(language=language, compile=lambda *a: None, one_text=None, is_pocl=lambda: pocl)
         recorder = Recorder(allowed, runtime_macros=("cl_khr_fp64",))
         recorder.wrap(fake)
         assert (fake.one_text is not None) == wired and fake.one_text is recorder.one_text

@@ -1,4 +1,4 @@
-"""A grading test's programs as one text: each program is preprocessed once, by the rules' clang
+"""A grading test's programs on PoCL as one text: each program is preprocessed once, by the rules' clang
 (rtlab.course.deps.preprocessed_opencl), and that text is what both the runtime's compiler builds and
 the rules (rtlab.course.lab_calls, rtlab.course.structure) read. A conditional, a stringized name or
 a macro's value then cannot read one way in the rules and another in the program that runs: every

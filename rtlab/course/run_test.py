@@ -63,8 +63,10 @@ class Recorder:
 
     def wrap(self, backend) -> None:
         compile_ = backend.compile
-        if self.allowed is not None and backend.language == "opencl":
-            # the rules and the runtime read one preprocessed text (rtlab.course.one_text)
+        if self.allowed is not None and backend.language == "opencl" and backend.is_pocl():
+            # the rules and PoCL read one preprocessed text (rtlab.course.one_text); on a GPU's OpenCL
+            # the program keeps its inline PTX (rt_port.h), which the rules' clang cannot read, so the
+            # rules read the files as the compile does, under the lab's defines
             from rtlab.course.one_text import OneText
             self.one_text = backend.one_text = OneText(backend, self.runtime_macros)
 
